@@ -1,0 +1,167 @@
+"""The BIM plane map: one record per wall-face section, in frame B (metres, z up).
+
+It is what `bimgraph bim` writes from an IFC model and what a user with only a floor plan
+writes by hand; both load through `load_plane_map`. The schema is documented in
+docs/formats.md; `PlaneMap.model_json_schema()` gives it as JSON Schema.
+"""
+
+from __future__ import annotations
+
+import json
+from functools import cached_property
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from bimgraph.errors import FormatError
+from bimgraph.files import read_json, write_atomic
+from bimgraph.validation import parse_model
+
+FORMAT = "bimgraph.planemap"
+VERSION = 1
+
+Vec3 = tuple[float, float, float]
+
+# A hand-written map is accepted if its points lie this close to the face's plane.
+_ON_PLANE_TOL_M = 0.01
+_UNIT_TOL = 1e-3
+
+
+class Space(BaseModel):
+    """The IfcSpace (room) a face section bounds."""
+
+    model_config = ConfigDict(extra="forbid")
+    guid: str
+    name: str = ""
+
+
+class BimFace(BaseModel):
+    """One planar face section of a wall (or a slab), as planned.
+
+    `normal` points out of the material into the free space (into the room for a wall face).
+    `offset` is d in `normal . x + offset = 0`. `polygon` is the outer boundary in B, its
+    vertices being the face's corners; `holes` are the openings cut out of it. `area` and
+    `centre` are of the polygon minus its holes and are computed when omitted.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+    id: str
+    wall_guid: str
+    wall_name: str = ""
+    kind: Literal["wall", "slab_top", "slab_bottom"] = "wall"
+    storey: str = ""
+    elevation: float = 0.0
+    normal: Vec3
+    offset: float
+    polygon: list[Vec3] = Field(min_length=3)
+    holes: list[list[Vec3]] = []
+    area: float | None = Field(default=None, gt=0)
+    centre: Vec3 | None = None
+    space: Space | None = None
+    split: Literal["space_boundary", "space_boundary_projected", "space_footprint", "junction", "none"] = "none"
+
+    @field_validator("normal")
+    @classmethod
+    def _unit(cls, normal):
+        norm = float(np.linalg.norm(normal))
+        if abs(norm - 1.0) > _UNIT_TOL:
+            raise ValueError(f"normal has length {norm:.4f}, must be a unit vector")
+        return normal
+
+    @model_validator(mode="after")
+    def _check_geometry(self):
+        n = np.asarray(self.normal)
+        for name, ring in [("polygon", self.polygon)] + [(f"holes[{i}]", h) for i, h in enumerate(self.holes)]:
+            dist = np.abs(np.asarray(ring) @ n + self.offset).max()
+            if dist > _ON_PLANE_TOL_M:
+                raise ValueError(f"{name} lies up to {dist:.3f} m off the plane normal.x + offset = 0")
+        if self.area is None or self.centre is None:
+            area, centre = polygon_area_centre(self.polygon, self.holes, n)
+            if area <= 0:
+                raise ValueError("polygon has zero area")
+            self.area = self.area if self.area is not None else area
+            self.centre = self.centre if self.centre is not None else tuple(centre)
+        return self
+
+    @property
+    def plane(self) -> np.ndarray:
+        """(nx, ny, nz, d) as a numpy array."""
+        return np.array([*self.normal, self.offset])
+
+
+class PlaneMap(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    format: Literal["bimgraph.planemap"] = FORMAT
+    version: Literal[1] = VERSION
+    source: str = ""
+    origin: str = "the IFC project's world coordinate system, without any map conversion"
+    faces: list[BimFace]
+
+    @model_validator(mode="after")
+    def _unique_ids(self):
+        seen = set()
+        for i, face in enumerate(self.faces):
+            if face.id in seen:
+                raise ValueError(f"faces[{i}].id {face.id!r} is not unique")
+            seen.add(face.id)
+        return self
+
+    @cached_property
+    def planes(self) -> np.ndarray:
+        """F x 4 array of every face's (n, d), in the order of `faces`."""
+        return np.array([f.plane for f in self.faces]).reshape(-1, 4)
+
+    @cached_property
+    def centres(self) -> np.ndarray:
+        return np.array([f.centre for f in self.faces]).reshape(-1, 3)
+
+    @cached_property
+    def index(self) -> dict[str, int]:
+        return {f.id: i for i, f in enumerate(self.faces)}
+
+    def walls(self) -> list[BimFace]:
+        return [f for f in self.faces if f.kind == "wall"]
+
+
+def polygon_area_centre(polygon, holes, normal) -> tuple[float, np.ndarray]:
+    """Area and centroid of a planar polygon with holes in 3-D (signed-area formula in the
+    polygon's own 2-D frame, so it holds for any orientation)."""
+    normal = np.asarray(normal, dtype=float)
+    u = np.cross(normal, [0.0, 0.0, 1.0] if abs(normal[2]) < 0.9 else [1.0, 0.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(normal, u)
+    origin = np.asarray(polygon[0], dtype=float)
+
+    def ring_moments(ring):
+        p = (np.asarray(ring, dtype=float) - origin) @ np.stack([u, v], axis=1)
+        x, y = p[:, 0], p[:, 1]
+        xn, yn = np.roll(x, -1), np.roll(y, -1)
+        cross = x * yn - xn * y
+        a = cross.sum() / 2.0
+        c = np.array([((x + xn) * cross).sum(), ((y + yn) * cross).sum()]) / 6.0
+        return abs(a), c * np.sign(a) if a != 0 else c
+
+    area, moment = ring_moments(polygon)
+    for hole in holes:
+        a_h, m_h = ring_moments(hole)
+        area -= a_h
+        moment = moment - m_h
+    if area <= 0:
+        return 0.0, origin
+    c2 = moment / area
+    return float(area), origin + c2[0] * u + c2[1] * v
+
+
+def load_plane_map(path: Path) -> PlaneMap:
+    """Read and validate a plane map; a FormatError names the bad field."""
+    data = read_json(path)
+    if isinstance(data, dict) and data.get("format") not in (None, FORMAT):
+        raise FormatError(f"{path}: format is {data.get('format')!r}, expected {FORMAT!r}")
+    return parse_model(PlaneMap, data, str(path))
+
+
+def save_plane_map(plane_map: PlaneMap, path: Path) -> None:
+    """Write atomically, so that a failure never leaves a half-written map behind."""
+    write_atomic(path, json.dumps(plane_map.model_dump(mode="json"), indent=1))

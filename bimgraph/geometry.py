@@ -1,0 +1,75 @@
+"""Pure maths on poses and planes, in numpy. No I/O, no gtsam.
+
+Poses are 4x4 homogeneous matrices named by their frames: `T_A_B` maps points from B into A.
+Planes are arrays `(nx, ny, nz, d)` with `|n| = 1` and `n . x + d = 0` (gtsam's OrientedPlane3).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+
+def make_pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = t
+    return T
+
+
+def inverse(T_A_B: np.ndarray) -> np.ndarray:
+    """T_B_A from T_A_B, without a general matrix inverse."""
+    R = T_A_B[:3, :3]
+    return make_pose(R.T, -R.T @ T_A_B[:3, 3])
+
+
+def pose_from_tum(values) -> np.ndarray:
+    """`tx ty tz qx qy qz qw` (TUM order, Hamilton quaternion) to a 4x4 pose."""
+    v = np.asarray(values, dtype=float)
+    return make_pose(Rotation.from_quat(v[3:7]).as_matrix(), v[:3])
+
+
+def pose_to_tum(T: np.ndarray) -> np.ndarray:
+    """A 4x4 pose to `tx ty tz qx qy qz qw`, with qw >= 0 so that files are canonical."""
+    q = Rotation.from_matrix(T[:3, :3]).as_quat()
+    if q[3] < 0:
+        q = -q
+    return np.concatenate([T[:3, 3], q])
+
+
+def exp_se3(xi: np.ndarray) -> np.ndarray:
+    """Pose from a 6-vector (rotation vector, translation), rotation applied first: the
+    ordering of gtsam's Pose3 tangent space, with translation not coupled to rotation."""
+    return make_pose(Rotation.from_rotvec(xi[:3]).as_matrix(), xi[3:])
+
+
+def normalise_plane(plane) -> np.ndarray:
+    """Scale all four coefficients so that |n| = 1 (gtsam normalises n but not d)."""
+    p = np.asarray(plane, dtype=float)
+    return p / np.linalg.norm(p[:3])
+
+
+def plane_to_frame(plane_A: np.ndarray, T_A_B: np.ndarray) -> np.ndarray:
+    """The plane given in A expressed in B (`OrientedPlane3.transform(T_A_B)`)."""
+    n_A, d_A = plane_A[:3], plane_A[3]
+    R, t = T_A_B[:3, :3], T_A_B[:3, 3]
+    return np.concatenate([R.T @ n_A, [d_A + n_A @ t]])
+
+
+def plane_from_frame(plane_B: np.ndarray, T_A_B: np.ndarray) -> np.ndarray:
+    """The plane given in B expressed in A (inverse of `plane_to_frame`)."""
+    return plane_to_frame(plane_B, inverse(T_A_B))
+
+
+def normal_angle_deg(n1: np.ndarray, n2: np.ndarray) -> float:
+    """Angle between two unit normals in degrees; oriented, so opposite normals give 180."""
+    return float(np.degrees(np.arccos(np.clip(np.dot(n1, n2), -1.0, 1.0))))
+
+
+def point_plane_distance(points: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """Signed distance of each point (N x 3, or 3) to the plane; positive on the normal's side."""
+    return np.asarray(points) @ plane[:3] + plane[3]
+
+
+def rotation_angle_deg(R: np.ndarray) -> float:
+    return float(np.degrees(np.linalg.norm(Rotation.from_matrix(R).as_rotvec())))

@@ -1,0 +1,1 @@
+"""Sequences: keyframes with front-end poses and detected planes, and their loaders."""

@@ -1,0 +1,216 @@
+"""The bimgraph sequence format: a folder with `sequence.json` and `keyframes.jsonl`.
+
+One keyframe a line: its stamp, the front-end's pose `T_S_C` and the planes detected in the
+camera frame. Simulated sequences also carry `groundtruth/`. The schema is documented in
+docs/formats.md; every record is validated on load and an error names the line and field.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from bimgraph.errors import FormatError, InputError
+from bimgraph.files import read_json, write_atomic, write_json
+from bimgraph.geometry import pose_from_tum
+from bimgraph.validation import parse_model
+
+FORMAT = "bimgraph.sequence"
+VERSION = 1
+META_FILE = "sequence.json"
+KEYFRAMES_FILE = "keyframes.jsonl"
+
+Vec3 = tuple[float, float, float]
+Pose7 = tuple[float, float, float, float, float, float, float]
+Mat3 = tuple[Vec3, Vec3, Vec3]
+
+
+def _check_square_psd(value, size: int):
+    if value is None:
+        return value
+    m = np.asarray(value, dtype=float)
+    if m.shape != (size, size):
+        raise ValueError(f"must be {size}x{size}")
+    if not np.allclose(m, m.T, atol=1e-9 * max(1.0, np.abs(m).max())):
+        raise ValueError("covariance is not symmetric")
+    if np.linalg.eigvalsh(m).min() <= 0:
+        raise ValueError("covariance is not positive definite")
+    return value
+
+
+class Camera(BaseModel):
+    """Pinhole intrinsics of the depth (and colour) images; depth PNG value = metres * depth_scale."""
+
+    model_config = ConfigDict(extra="forbid")
+    width: int = Field(gt=0)
+    height: int = Field(gt=0)
+    fx: float = Field(gt=0)
+    fy: float = Field(gt=0)
+    cx: float
+    cy: float
+    depth_scale: float = Field(default=5000.0, gt=0)
+
+    @property
+    def K(self) -> np.ndarray:
+        return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1.0]])
+
+
+class InitialAlignment(BaseModel):
+    """The user's initial (manual) alignment `T_B_S` and its one-sigma uncertainty."""
+
+    model_config = ConfigDict(extra="forbid")
+    T_B_S: Pose7
+    sigma_rot_deg: float = Field(default=2.0, gt=0)
+    sigma_trans_m: float = Field(default=0.2, gt=0)
+
+
+class PlaneObservation(BaseModel):
+    """A plane detected in the camera frame C, `n . x + d = 0`, normal toward the camera (d > 0).
+
+    `cov` is 3x3 in the tangent space of gtsam's OrientedPlane3 (two normal directions of
+    its Unit3 basis, then d). `polygon` is the extent in C.
+    """
+
+    model_config = ConfigDict(extra="forbid")
+    n: Vec3
+    d: float
+    cov: Mat3 | None = None
+    polygon: list[Vec3] | None = None
+    area: float | None = Field(default=None, ge=0)
+    centre: Vec3 | None = None
+    inliers: int | None = Field(default=None, ge=0)
+    track_id: int | None = None
+
+    @field_validator("n")
+    @classmethod
+    def _unit(cls, n):
+        norm = float(np.linalg.norm(n))
+        if abs(norm - 1.0) > 1e-3:
+            raise ValueError(f"normal has length {norm:.4f}, must be a unit vector")
+        return n
+
+    @field_validator("cov")
+    @classmethod
+    def _cov(cls, cov):
+        return _check_square_psd(cov, 3)
+
+    @property
+    def plane(self) -> np.ndarray:
+        n = np.asarray(self.n) / np.linalg.norm(self.n)
+        return np.array([*n, self.d])
+
+
+class Keyframe(BaseModel):
+    """One line of keyframes.jsonl. `T_S_C` is `tx ty tz qx qy qz qw` (TUM order); `cov` is
+    the 6x6 covariance of the front-end pose in gtsam's Pose3 tangent order (rotation, then
+    translation); `depth`/`rgb` are image paths relative to the sequence folder."""
+
+    model_config = ConfigDict(extra="forbid")
+    index: int = Field(ge=0)
+    stamp: float
+    T_S_C: Pose7
+    cov: tuple[tuple[float, ...], ...] | None = None
+    planes: list[PlaneObservation] = []
+    depth: str | None = None
+    rgb: str | None = None
+
+    @field_validator("T_S_C")
+    @classmethod
+    def _unit_quaternion(cls, v):
+        qn = float(np.linalg.norm(v[3:]))
+        if abs(qn - 1.0) > 1e-3:
+            raise ValueError(f"quaternion has norm {qn:.4f}, must be unit")
+        return v
+
+    @field_validator("cov")
+    @classmethod
+    def _cov(cls, cov):
+        return _check_square_psd(cov, 6)
+
+    @property
+    def pose(self) -> np.ndarray:
+        """T_S_C as a 4x4 matrix."""
+        return pose_from_tum(self.T_S_C)
+
+
+class SequenceMeta(BaseModel):
+    """sequence.json. `model` is the as-planned IFC or plane map, relative to the folder or
+    absolute; `initial_alignment` is the user's manual T_B_S."""
+
+    model_config = ConfigDict(extra="forbid")
+    format: Literal["bimgraph.sequence"] = FORMAT
+    version: Literal[1] = VERSION
+    name: str = ""
+    model: str | None = None
+    camera: Camera | None = None
+    sensor: Literal["planes", "depth", "external"] = "external"
+    gravity_aligned: bool = True
+    initial_alignment: InitialAlignment | None = None
+    simulated: dict | None = None
+
+
+class Sequence(BaseModel):
+    """A loaded sequence: its folder, metadata and keyframes in order."""
+
+    model_config = ConfigDict(arbitrary_types_allowed=True)
+    root: Path
+    meta: SequenceMeta
+    keyframes: list[Keyframe]
+
+    def model_path(self) -> Path | None:
+        if self.meta.model is None:
+            return None
+        p = Path(self.meta.model)
+        return p if p.is_absolute() else self.root / p
+
+
+def load_meta(root: Path) -> SequenceMeta:
+    path = Path(root) / META_FILE
+    return parse_model(SequenceMeta, read_json(path), str(path))
+
+
+def iter_keyframes(root: Path):
+    """Yield keyframes one by one (online use), validating each line as it comes."""
+    path = Path(root) / KEYFRAMES_FILE
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    previous = None
+    with path.open() as fh:
+        for lineno, line in enumerate(fh, start=1):
+            if not line.strip():
+                continue
+            where = f"{path}: line {lineno}"
+            try:
+                data = json.loads(line)
+            except json.JSONDecodeError as err:
+                raise FormatError(f"{where}: invalid JSON ({err.msg})") from None
+            kf = parse_model(Keyframe, data, where)
+            if previous is not None and kf.index <= previous.index:
+                raise FormatError(f"{where}: index: {kf.index} does not follow {previous.index}")
+            previous = kf
+            yield kf
+
+
+def load_sequence(root: Path) -> Sequence:
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError(f"{root}: not a sequence folder")
+    meta = load_meta(root)
+    keyframes = list(iter_keyframes(root))
+    if not keyframes:
+        raise FormatError(f"{root / KEYFRAMES_FILE}: no keyframes")
+    return Sequence(root=root, meta=meta, keyframes=keyframes)
+
+
+def keyframe_line(kf: Keyframe) -> str:
+    return json.dumps(kf.model_dump(mode="json", exclude_none=True)) + "\n"
+
+
+def save_sequence(seq: Sequence) -> None:
+    seq.root.mkdir(parents=True, exist_ok=True)
+    write_json(seq.root / META_FILE, seq.meta.model_dump(mode="json", exclude_none=True))
+    write_atomic(seq.root / KEYFRAMES_FILE, "".join(keyframe_line(kf) for kf in seq.keyframes))

@@ -1,0 +1,32 @@
+"""Turning pydantic's validation errors into one line that names the file, line and field."""
+
+from __future__ import annotations
+
+from typing import TypeVar
+
+from pydantic import BaseModel, ValidationError
+
+from bimgraph.errors import FormatError
+
+M = TypeVar("M", bound=BaseModel)
+
+
+def _field(loc: tuple) -> str:
+    out = ""
+    for part in loc:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out or "(top level)"
+
+
+def describe(err: ValidationError) -> str:
+    first = err.errors()[0]
+    more = f" (and {err.error_count() - 1} more)" if err.error_count() > 1 else ""
+    return f"{_field(first['loc'])}: {first['msg']}{more}"
+
+
+def parse_model(model: type[M], data, where: str) -> M:
+    """Validate `data` as `model`; on failure raise FormatError starting with `where`."""
+    try:
+        return model.model_validate(data)
+    except ValidationError as err:
+        raise FormatError(f"{where}: {describe(err)}") from None

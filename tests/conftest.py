@@ -1,0 +1,29 @@
+"""Shared fixtures: where the real IFC samples are, and whether their absence is allowed."""
+
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def ifc_samples_dir() -> Path:
+    return Path(os.environ.get("BIMGRAPH_IFC_SAMPLES", ROOT.parent / "shared" / "data" / "ifc"))
+
+
+@pytest.fixture(scope="session")
+def ifc_samples() -> Path:
+    """The folder of real IFC models; skipped where absent, but a failure under CI."""
+    folder = ifc_samples_dir()
+    if not any(folder.glob("*.ifc")):
+        msg = f"no IFC samples in {folder} (set BIMGRAPH_IFC_SAMPLES)"
+        if os.environ.get("CI") == "true":
+            pytest.fail(msg)
+        pytest.skip(msg)
+    return folder
+
+
+def sample_models() -> list[str]:
+    """Names of the sample models, for parametrising (empty if the folder is absent)."""
+    return sorted(p.name for p in ifc_samples_dir().glob("*.ifc"))

@@ -1,0 +1,105 @@
+"""The plane map and sequence formats: valid files load, bad ones name the bad field."""
+
+import json
+
+import numpy as np
+import pytest
+
+from bimgraph.bim.planemap import PlaneMap, load_plane_map, polygon_area_centre, save_plane_map
+from bimgraph.errors import FormatError, InputError
+from bimgraph.sequence.format import iter_keyframes, load_sequence
+
+HAND_MAP = {
+    "format": "bimgraph.planemap",
+    "version": 1,
+    "faces": [
+        {
+            "id": "north",
+            "wall_guid": "W1",
+            "normal": [0, -1, 0],
+            "offset": 5.0,
+            "polygon": [[0, 5, 0], [4, 5, 0], [4, 5, 3], [0, 5, 3]],
+        }
+    ],
+}
+
+
+def test_hand_written_map_gets_area_and_centre(tmp_path):
+    path = tmp_path / "map.json"
+    path.write_text(json.dumps(HAND_MAP))
+    pm = load_plane_map(path)
+    face = pm.faces[0]
+    assert face.area == pytest.approx(12.0)
+    assert np.allclose(face.centre, [2, 5, 1.5])
+    save_plane_map(pm, tmp_path / "again.json")
+    assert load_plane_map(tmp_path / "again.json") == pm
+
+
+def test_polygon_with_hole():
+    square = [[0, 0, 0], [2, 0, 0], [2, 0, 2], [0, 0, 2]]
+    hole = [[0, 0, 0], [1, 0, 0], [1, 0, 1], [0, 0, 1]]
+    area, centre = polygon_area_centre(square, [hole], [0, 1, 0])
+    assert area == pytest.approx(3.0)
+    # Moments: (4 * (1, 1) - 1 * (0.5, 0.5)) / 3
+    assert np.allclose(centre, [3.5 / 3, 0, 3.5 / 3])
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda f: f.update(normal=[0, -2, 0]), "faces[0].normal"),
+        (lambda f: f.update(polygon=[[0, 5, 0], [4, 5, 0]]), "faces[0].polygon"),
+        (lambda f: f.update(offset=4.0), "off the plane"),
+        (lambda f: f.pop("wall_guid"), "faces[0].wall_guid"),
+    ],
+)
+def test_bad_map_names_the_field(tmp_path, change, message):
+    data = json.loads(json.dumps(HAND_MAP))
+    change(data["faces"][0])
+    path = tmp_path / "map.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(FormatError, match=message.replace("[", r"\[").replace("]", r"\]")):
+        load_plane_map(path)
+
+
+def test_not_json(tmp_path):
+    path = tmp_path / "map.json"
+    path.write_text("{ nope")
+    with pytest.raises(FormatError, match="line 1"):
+        load_plane_map(path)
+    with pytest.raises(InputError):
+        load_plane_map(tmp_path / "missing.json")
+
+
+def _write_sequence(root, lines):
+    root.mkdir()
+    (root / "sequence.json").write_text(json.dumps({"format": "bimgraph.sequence", "version": 1}))
+    (root / "keyframes.jsonl").write_text("".join(json.dumps(x) + "\n" for x in lines))
+
+
+KF = {"index": 0, "stamp": 0.0, "T_S_C": [0, 0, 0, 0, 0, 0, 1],
+      "planes": [{"n": [0, 0, -1], "d": 2.0, "cov": [[1e-4, 0, 0], [0, 1e-4, 0], [0, 0, 1e-4]]}]}
+
+
+def test_sequence_loads(tmp_path):
+    kf2 = dict(KF, index=1, stamp=0.1)
+    _write_sequence(tmp_path / "seq", [KF, kf2])
+    seq = load_sequence(tmp_path / "seq")
+    assert len(seq.keyframes) == 2
+    assert np.allclose(seq.keyframes[0].pose, np.eye(4))
+    assert np.allclose(seq.keyframes[0].planes[0].plane, [0, 0, -1, 2])
+
+
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        (dict(KF, index=1, T_S_C=[0, 0, 0, 0, 0, 0, 2]), "line 2: T_S_C"),
+        (dict(KF, index=1, planes=[{"n": [0, 0, -1]}]), r"line 2: planes\[0\].d"),
+        (dict(KF, index=0), "line 2: index"),
+        (dict(KF, index=1, planes=[dict(KF["planes"][0], cov=[[1, 0, 0], [0, -1, 0], [0, 0, 1]])]), "positive definite"),
+    ],
+)
+def test_bad_keyframe_names_line_and_field(tmp_path, bad, message):
+    _write_sequence(tmp_path / "seq", [KF, bad])
+    with pytest.raises(FormatError, match=message):
+        list(iter_keyframes(tmp_path / "seq"))

@@ -1,0 +1,1 @@
+"""Evaluation: the seed paper's baselines, ground-truth metrics and the reproduction table."""

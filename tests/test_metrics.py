@@ -1,0 +1,83 @@
+"""Metrics on hand-made cases with known answers."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from bimgraph.evaluation.metrics import (
+    WallMatch,
+    association_scores,
+    ate,
+    extrinsic_error,
+    mean_wall_errors,
+    rpe,
+    wall_errors,
+)
+from bimgraph.geometry import exp_se3, make_pose
+
+
+def _trajectory(n=20, seed=0):
+    rng = np.random.default_rng(seed)
+    return [exp_se3(np.concatenate([rng.normal(0, 0.5, 3), rng.normal(0, 3, 3)])) for _ in range(n)]
+
+
+def test_offset_trajectory_gives_that_ate():
+    gt = _trajectory()
+    offset = np.array([0.03, -0.04, 0.0])  # 5 cm
+    est = [make_pose(T[:3, :3], T[:3, 3] + offset) for T in gt]
+    assert ate(est, gt) == pytest.approx(0.05, abs=1e-12)
+    # A constant offset moves no relative motion's translation... only where rotation is shared.
+    t_rpe, r_rpe = rpe(est, gt)
+    assert r_rpe == pytest.approx(0.0, abs=1e-6)
+
+
+def test_rpe_of_a_scaled_step():
+    gt = [make_pose(np.eye(3), [i, 0, 0]) for i in range(5)]
+    est = [make_pose(np.eye(3), [1.1 * i, 0, 0]) for i in range(5)]
+    assert rpe(est, gt)[0] == pytest.approx(0.1)
+    assert ate(est, gt) == pytest.approx(np.sqrt(np.mean((0.1 * np.arange(5)) ** 2)))
+
+
+def test_extrinsic_error():
+    gt = make_pose(Rotation.from_euler("z", 30, degrees=True).as_matrix(), [1, 2, 0])
+    est = make_pose(Rotation.from_euler("z", 32, degrees=True).as_matrix(), [1, 2.03, 0.04])
+    deg, cm = extrinsic_error(est, gt)
+    assert deg == pytest.approx(2.0)
+    assert cm == pytest.approx(5.0)
+
+
+def test_rotated_plane_gives_that_angular_deviation():
+    face_B = np.array([1.0, 0, 0, -2.0])  # x = 2
+    T_B_C = make_pose(np.eye(3), [0, 0, 0])
+    tilt = np.radians(3.0)
+    n_C = np.array([np.cos(tilt), np.sin(tilt), 0.0])
+    centre_C = np.array([2.0, 0.0, 0.0]) + np.array([0.0, 0.0, 0.0])
+    plane_C = np.array([*n_C, -n_C @ centre_C])
+    # A second plane, 4 cm off the face, in another keyframe.
+    T2 = make_pose(Rotation.from_euler("z", 90, degrees=True).as_matrix(), [0, 0, 0])
+    centre2_B = np.array([2.04, 1.0, 1.0])
+    centre2_C = T2[:3, :3].T @ centre2_B
+    n2_C = T2[:3, :3].T @ np.array([1.0, 0, 0])
+    plane2_C = np.array([*n2_C, -n2_C @ centre2_C])
+    per_kf = wall_errors(
+        [WallMatch(0, plane_C, centre_C, face_B), WallMatch(1, plane2_C, centre2_C, face_B)],
+        {0: T_B_C, 1: T2},
+    )
+    assert per_kf[0][0] == pytest.approx(3.0)
+    assert per_kf[0][1] == pytest.approx(0.0, abs=1e-12)
+    assert per_kf[1][0] == pytest.approx(0.0, abs=1e-6)
+    assert per_kf[1][1] == pytest.approx(0.04)
+    assert mean_wall_errors(per_kf) == pytest.approx((1.5, 0.02))
+
+
+def test_wrong_association_lowers_precision_by_the_right_amount():
+    truth = {(k, i): f"F{i}" for k in range(5) for i in range(4)}  # 20 true matches
+    truth[(0, 4)] = None  # clutter
+    predicted = dict(truth)
+    assert association_scores(predicted, truth) == (1.0, 1.0)
+    predicted[(2, 1)] = "F3"  # one wrong
+    predicted[(0, 4)] = "F0"  # clutter matched to a face: a false positive
+    del predicted[(4, 0)]  # one missed
+    precision, recall = association_scores(predicted, truth)
+    assert precision == pytest.approx(18 / 20)
+    assert recall == pytest.approx(18 / 20)

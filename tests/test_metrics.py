@@ -81,3 +81,38 @@ def test_wrong_association_lowers_precision_by_the_right_amount():
     precision, recall = association_scores(predicted, truth)
     assert precision == pytest.approx(18 / 20)
     assert recall == pytest.approx(18 / 20)
+
+
+def test_ate_equals_evo_ape(tmp_path):
+    """Our ATE is evo's APE (translation part, no alignment) on the same TUM files, to 1e-6 m.
+    evo is GPL-3.0: run as an external command only, never imported."""
+    import json
+    import shutil
+    import subprocess
+    import sys
+    import zipfile
+    from pathlib import Path
+
+    from bimgraph.sequence.tum import read_tum, write_tum
+
+    evo_ape = shutil.which("evo_ape") or str(Path(sys.executable).parent / "evo_ape")
+    if not Path(evo_ape).exists():
+        pytest.fail("evo_ape not found: install the test extras (pip install -e .[test])")
+    gt = _trajectory(50, seed=1)
+    rng = np.random.default_rng(2)
+    est = [T @ exp_se3(rng.normal(0, 0.02, 6)) for T in gt]
+    stamps = np.arange(50) * 0.1
+    write_tum(tmp_path / "gt.tum", stamps, gt)
+    write_tum(tmp_path / "est.tum", stamps, est)
+    subprocess.run(
+        [evo_ape, "tum", str(tmp_path / "gt.tum"), str(tmp_path / "est.tum"), "--pose_relation", "trans_part",
+         "--save_results", str(tmp_path / "ape.zip"), "--no_warnings"],
+        check=True, capture_output=True, cwd=tmp_path, env={"HOME": str(tmp_path), "PATH": ""},
+    )
+    with zipfile.ZipFile(tmp_path / "ape.zip") as z:
+        evo_rmse = json.loads(z.read("stats.json"))["rmse"]
+    # Compare on what was written, so that the files' precision is not part of the test.
+    _, gt_read = read_tum(tmp_path / "gt.tum")
+    _, est_read = read_tum(tmp_path / "est.tum")
+    assert ate(est_read, gt_read) == pytest.approx(evo_rmse, abs=1e-6)
+    assert evo_rmse > 0.01

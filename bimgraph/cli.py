@@ -97,6 +97,205 @@ def bim(
     console().print(report)
 
 
+@app.command()
+@friendly_errors
+def planes(
+    seqdir: Path = typer.Argument(..., help="A sequence folder with depth images, or a TUM RGB-D folder (with --trajectory)."),
+    trajectory: Optional[Path] = typer.Option(None, "--trajectory", "-t", help="TUM trajectory (T_S_C) of any SLAM, to turn a plain TUM RGB-D folder into a sequence."),
+    intrinsics: Optional[Path] = typer.Option(None, "--intrinsics", "-i", help="YAML/JSON file with width, height, fx, fy, cx, cy (depth_scale optional)."),
+    fx: Optional[float] = typer.Option(None, "--fx", help="Focal length x in pixels (with --fy --cx --cy instead of --intrinsics)."),
+    fy: Optional[float] = typer.Option(None, "--fy"),
+    cx: Optional[float] = typer.Option(None, "--cx"),
+    cy: Optional[float] = typer.Option(None, "--cy"),
+    max_dt: float = typer.Option(0.02, "--max-dt", help="Largest stamp difference between a depth image and its trajectory pose (s)."),
+    config_file: Optional[Path] = ConfigOption,
+):
+    """Detect planes in every keyframe's depth image and write them into the keyframes file.
+
+    Example (TUM fr1/desk, ORB-SLAM trajectory):
+    bimgraph planes rgbd_dataset_freiburg1_desk -t CameraTrajectory.txt --fx 517.3 --fy 516.5 --cx 318.6 --cy 255.3
+    """
+    from rich.progress import Progress
+
+    from bimgraph.config import load_config
+    from bimgraph.errors import ConfigError
+    from bimgraph.planes.sequence import detect_planes, resolve_camera
+    from bimgraph.sequence.format import META_FILE, load_sequence, save_sequence
+    from bimgraph.sequence.tum_rgbd import DEPTH_LIST, load_camera, load_tum_rgbd, read_image_list
+
+    cfg = load_config(config_file)
+    pinhole = (fx, fy, cx, cy)
+    if any(v is not None for v in pinhole) and any(v is None for v in pinhole):
+        raise ConfigError("give all four of --fx --fy --cx --cy")
+    pinhole = pinhole if fx is not None else None
+    camera_file = load_camera(intrinsics) if intrinsics is not None else None
+    if trajectory is not None:
+        stamps, names = read_image_list(seqdir / DEPTH_LIST)
+        first = seqdir / names[0] if names else None
+        camera = resolve_camera(None, camera_file, pinhole, first)
+        seq = load_tum_rgbd(seqdir, trajectory, camera, max_dt=max_dt)
+    elif (seqdir / META_FILE).is_file():
+        seq = load_sequence(seqdir)
+        first = next((seqdir / kf.depth for kf in seq.keyframes if kf.depth), None)
+        camera = resolve_camera(seq, camera_file, pinhole, first)
+    else:
+        raise ConfigError(f"{seqdir}: no {META_FILE}; for a TUM RGB-D folder give --trajectory")
+    seq.meta.camera = camera
+    out = console()
+    with Progress(console=out, transient=True) as progress:
+        task = progress.add_task("extracting planes", total=len(seq.keyframes))
+        report = detect_planes(seq, camera, cfg.planes, cfg.depth_noise, on_frame=lambda kf: progress.advance(task))
+    for line in report.problems:
+        out.print(f"[yellow]skipped[/yellow] {line}", highlight=False, soft_wrap=True)
+    save_sequence(seq)
+    out.print(f"{report.planes} planes in {report.frames} frames ({len(report.problems)} skipped) -> {seqdir}", soft_wrap=True)
+
+
+@app.command()
+@friendly_errors
+def simulate(
+    output: Path = typer.Option(..., "--output", "-o", help="The sequence folder to write."),
+    scenario: Optional[str] = typer.Option(None, "--scenario", help="Generated building: office or site (default office)."),
+    ifc: Optional[Path] = typer.Option(None, "--ifc", help="Walk through this IFC model instead of a generated one."),
+    sensor: str = typer.Option("planes", "--sensor", help="planes: plane detections (fast); depth: 640x480 depth images."),
+    keyframes: int = typer.Option(600, "--keyframes", "-n", help="Number of keyframes."),
+    seed: int = typer.Option(0, "--seed", help="Random seed; the same seed gives the same files."),
+    config_file: Optional[Path] = ConfigOption,
+):
+    """Simulate a walk through a building with a drifting front-end, and its ground truth.
+
+    Example: bimgraph simulate -o seq --scenario site --keyframes 800 --seed 3
+    """
+    from rich.progress import Progress
+
+    from bimgraph.config import load_config
+    from bimgraph.sim.simulate import SimOptions, simulate as run_simulation
+
+    cfg = load_config(config_file)
+    opts = SimOptions(output=output, scenario=scenario, ifc=ifc, sensor=sensor, keyframes=keyframes, seed=seed)
+    opts.check()
+    out = console()
+    with Progress(console=out, transient=True) as bar:
+        task = bar.add_task(f"simulating ({sensor})", total=keyframes)
+        summary = run_simulation(opts, cfg, log=out.print, progress=lambda done, total: bar.update(task, completed=done))
+    drift = summary["drift"]
+    out.print(f"{output}: {summary['keyframes']} keyframes, {summary['planes']} plane detections, "
+              f"{summary['distance_m']:.1f} m walked; front-end drift {drift['final_drift_percent']:.2f} % of distance, "
+              f"heading {drift['yaw_drift_deg_per_m']:.3f} deg/m; timings {summary['timings_s']}")
+
+
+@app.command()
+@friendly_errors
+def run(
+    sequence: Path = typer.Argument(..., help="The sequence folder (sequence.json + keyframes.jsonl)."),
+    output: Path = typer.Option(..., "--output", "-o", help="Folder for the trajectories, extrinsic, associations, landmarks, summary."),
+    bim_model: Optional[Path] = typer.Option(None, "--bim", help="IFC model or plane map JSON; default: the model sequence.json names."),
+    mode: str = typer.Option("online", "--mode", help="online (keyframe by keyframe, causal) or offline (whole sequence, smoothed)."),
+    seed: list[str] = typer.Option([], "--seed", help="Seed pair KEYFRAME:PLANE:FACE_ID for the initial alignment (repeat it); default: the sequence's manual alignment."),
+    oracle: bool = typer.Option(False, "--oracle", help="Use the ground-truth associations of a simulated sequence (the reference the association is measured by)."),
+    rrd: Optional[Path] = typer.Option(None, "--rrd", help="Save a Rerun recording of the run to this .rrd file (open it with: rerun FILE)."),
+    spawn: bool = typer.Option(False, "--spawn", help="Open the Rerun viewer and stream the run to it as it goes."),
+    config_file: Optional[Path] = ConfigOption,
+):
+    """Estimate the trajectory in B, the extrinsic T_B_S and the wall associations of a sequence.
+
+    Example: bimgraph run seq -o out --mode offline --bim planes.json
+
+    Example: bimgraph run seq -o out --rrd out/run.rrd; rerun out/run.rrd
+    """
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from bimgraph.backend.pipeline import parse_seed, run as run_backend
+    from bimgraph.config import load_config
+
+    cfg = load_config(config_file)
+    out = console()
+    seeds = [parse_seed(s) for s in seed]
+    viewer = listener = None
+    if rrd is not None or spawn:
+        from bimgraph.viewer.session import follow_run
+
+        viewer, listener = follow_run(sequence, bim_model, cfg, rrd=rrd, spawn=spawn)
+    try:
+        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                      console=out, transient=True) as bar:
+            task = bar.add_task(f"bimgraph run ({mode})", total=None)
+            run_backend(sequence, output, mode=mode, bim=bim_model, config=cfg, seeds=seeds, oracle=oracle,
+                        listener=listener, progress=lambda done, total: bar.update(task, completed=done))
+    finally:
+        if viewer is not None:  # an interrupted run still leaves a complete recording
+            from bimgraph.viewer.session import finish
+
+            finish(viewer, output)
+    out.print(f"{output}: written ({mode})")
+    if rrd is not None:
+        out.print(f"recording: {rrd} (open it with: rerun {rrd})")
+
+
+@app.command()
+@friendly_errors
+def view(
+    outdir: Path = typer.Argument(..., help="The output folder of a finished `bimgraph run`."),
+    sequence: Optional[Path] = typer.Option(None, "--sequence", "-s", help="The run's sequence folder (default: the one summary.json names)."),
+    bim_model: Optional[Path] = typer.Option(None, "--bim", help="IFC model or plane map JSON; default: the model sequence.json names."),
+    rrd: Optional[Path] = typer.Option(None, "--rrd", help="Save the recording to this .rrd file instead of opening the viewer."),
+    spawn: bool = typer.Option(False, "--spawn", help="Also open the viewer when saving with --rrd."),
+    config_file: Optional[Path] = ConfigOption,
+):
+    """Show a finished run in the Rerun viewer: trajectories, extrinsic, associations, deviations.
+
+    Example: bimgraph view out --sequence seq
+
+    Example: bimgraph view out --sequence seq --rrd out/run.rrd
+    """
+    from bimgraph.config import load_config
+    from bimgraph.viewer.session import view_outputs
+
+    cfg = load_config(config_file)
+    n = view_outputs(outdir, sequence, cfg, bim=bim_model, rrd=rrd, spawn=spawn or rrd is None)
+    console().print(f"{outdir}: {n} keyframes logged" + (f" to {rrd} (open it with: rerun {rrd})" if rrd else ""))
+
+
+@app.command("eval")
+@friendly_errors
+def evaluate(
+    outdirs: list[Path] = typer.Argument(..., help="Output folders of `bimgraph run` on the same sequence."),
+    gt: Path = typer.Option(..., "--gt", help="The simulated sequence folder (with groundtruth/)."),
+    baselines: bool = typer.Option(True, "--baselines/--no-baselines", help="Also measure the seed paper's manual, global and local alignment, with the first run's associations."),
+    config_file: Optional[Path] = ConfigOption,
+):
+    """Measure runs against ground truth: ATE, RPE, extrinsic error, the paper's wall errors,
+    association precision and recall. Writes metrics.json into each output folder.
+
+    Example: bimgraph eval out/online out/offline --gt seq
+    """
+    from bimgraph.config import load_config
+    from bimgraph.evaluation.evaluate import reduction_percent
+    from bimgraph.evaluation.report import metrics_table
+    from bimgraph.evaluation.runs import Evaluation, load_estimate, summary_row, write_metrics
+
+    cfg = load_config(config_file)
+    evaluation = Evaluation(gt, cfg)
+    estimates = {str(d): load_estimate(d) for d in outdirs}
+    rows = []
+    if baselines:
+        associations = next(iter(estimates.values())).associations
+        methods = ["manual", "global", "local"]
+        for method in methods:
+            rows.append(summary_row(method, evaluation.metrics(evaluation.baseline(method, associations))))
+    for out_dir, estimate in estimates.items():
+        metrics = evaluation.metrics(estimate)
+        write_metrics(out_dir, metrics)
+        rows.append(summary_row(Path(out_dir).name, metrics))
+    if baselines:
+        manual = rows[0]
+        for row in rows[1:]:
+            row["wall_angle_reduction_pct"] = reduction_percent(row["wall_angle_deg"], manual["wall_angle_deg"])
+            row["wall_distance_reduction_pct"] = reduction_percent(row["wall_distance_m"], manual["wall_distance_m"])
+    from rich.console import Console
+
+    Console().print(metrics_table(rows))
+
 def main():
     app()
 

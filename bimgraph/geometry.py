@@ -73,3 +73,22 @@ def point_plane_distance(points: np.ndarray, plane: np.ndarray) -> np.ndarray:
 
 def rotation_angle_deg(R: np.ndarray) -> float:
     return float(np.degrees(np.linalg.norm(Rotation.from_matrix(R).as_rotvec())))
+
+
+def rotation_from_correlation(H: np.ndarray) -> np.ndarray | None:
+    """The rotation R maximising sum(b . R a) given `H = sum(a b^T)` (Kabsch); None when the
+    vectors span less than a plane, so that a rotation about them is left free."""
+    U, s, Vt = np.linalg.svd(H)
+    if s[1] <= 1e-6 * max(s[0], 1e-12):
+        return None
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    return Vt.T @ D @ U.T
+
+
+def least_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking unit vector a onto unit vector b."""
+    axis = np.cross(a, b)
+    s, c = np.linalg.norm(axis), float(a @ b)
+    if s < 1e-12:
+        return np.eye(3)
+    return Rotation.from_rotvec(axis / s * np.arctan2(s, c)).as_matrix()

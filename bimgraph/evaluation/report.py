@@ -1,0 +1,37 @@
+"""Tables of metrics: rich for the terminal, markdown for the README and the reproduction."""
+
+from __future__ import annotations
+
+import math
+
+COLUMNS = [
+    ("method", "method", "{}"),
+    ("ate_m", "ATE m", "{:.3f}"),
+    ("extrinsic_rot_deg", "E deg", "{:.2f}"),
+    ("extrinsic_trans_cm", "E cm", "{:.1f}"),
+    ("wall_angle_deg", "wall deg", "{:.2f}"),
+    ("wall_distance_m", "wall m", "{:.3f}"),
+    ("wall_angle_reduction_pct", "deg -%", "{:.1f}"),
+    ("wall_distance_reduction_pct", "m -%", "{:.1f}"),
+    ("association_precision", "prec.", "{:.3f}"),
+    ("association_recall", "recall", "{:.3f}"),
+]
+
+
+def _cell(fmt: str, value) -> str:
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "-"
+    return fmt.format(value)
+
+
+def metrics_table(rows: list[dict]):
+    from rich.table import Table
+
+    present = [c for c in COLUMNS if any(c[0] in r for r in rows)]
+    table = Table(title="bimgraph evaluation", caption="E: extrinsic T_B_S error; wall: the paper's wall errors; "
+                  "-%: reduction against manual; prec./recall: association against ground truth")
+    for _, title, _ in present:
+        table.add_column(title, justify="left" if title == "method" else "right")
+    for row in rows:
+        table.add_row(*[_cell(fmt, row.get(key)) for key, _, fmt in present])
+    return table

@@ -272,7 +272,7 @@ def evaluate(
     from bimgraph.config import load_config
     from bimgraph.evaluation.evaluate import reduction_percent
     from bimgraph.evaluation.report import metrics_table
-    from bimgraph.evaluation.runs import Evaluation, load_estimate, summary_row, write_metrics
+    from bimgraph.evaluation.runs import Evaluation, load_estimate, run_timings, summary_row, write_metrics
 
     cfg = load_config(config_file)
     evaluation = Evaluation(gt, cfg)
@@ -286,7 +286,7 @@ def evaluate(
     for out_dir, estimate in estimates.items():
         metrics = evaluation.metrics(estimate)
         write_metrics(out_dir, metrics)
-        rows.append(summary_row(Path(out_dir).name, metrics))
+        rows.append({**summary_row(Path(out_dir).name, metrics), **run_timings(out_dir)})
     if baselines:
         manual = rows[0]
         for row in rows[1:]:
@@ -294,7 +294,7 @@ def evaluate(
             row["wall_distance_reduction_pct"] = reduction_percent(row["wall_distance_m"], manual["wall_distance_m"])
     from rich.console import Console
 
-    Console().print(metrics_table(rows))
+    Console(width=max(Console().width, 120)).print(metrics_table(rows))
 
 def main():
     app()

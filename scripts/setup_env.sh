@@ -26,7 +26,7 @@ STAMP="$VENV/.bimgraph-installed"
 if [ ! -f "$STAMP" ] || [ "$ROOT/pyproject.toml" -nt "$STAMP" ]; then
   echo "installing bimgraph and its dependencies into $VENV (first time: a few minutes)..." >&2
   "$VENV/bin/python" -m pip install -q --upgrade pip >/dev/null
-  "$VENV/bin/python" -m pip install -q -e "$ROOT[test,bcf]"
+  "$VENV/bin/python" -m pip install -q -e "$ROOT[test,plot]"
   touch "$STAMP"
 fi
 export PATH="$VENV/bin:$PATH"

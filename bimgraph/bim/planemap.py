@@ -97,6 +97,9 @@ class PlaneMap(BaseModel):
     version: Literal[1] = VERSION
     source: str = ""
     origin: str = "the IFC project's world coordinate system, without any map conversion"
+    # Where B sits in the IFC file's world frame, so that results can go back into the model
+    # (BCF viewpoints): [tx, ty, tz, qx, qy, qz, qw], metres; None when B is that frame.
+    T_W_B: tuple[float, float, float, float, float, float, float] | None = None
     faces: list[BimFace]
 
     @model_validator(mode="after")

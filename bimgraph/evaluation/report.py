@@ -15,6 +15,8 @@ COLUMNS = [
     ("wall_distance_reduction_pct", "m -%", "{:.1f}"),
     ("association_precision", "prec.", "{:.3f}"),
     ("association_recall", "recall", "{:.3f}"),
+    ("run_s", "run s", "{:.1f}"),
+    ("latency_median_ms", "ms/kf", "{:.1f}"),
 ]
 
 
@@ -29,9 +31,13 @@ def metrics_table(rows: list[dict]):
 
     present = [c for c in COLUMNS if any(c[0] in r for r in rows)]
     table = Table(title="bimgraph evaluation", caption="E: extrinsic T_B_S error; wall: the paper's wall errors; "
-                  "-%: reduction against manual; prec./recall: association against ground truth")
+                  "-%: reduction against manual; prec./recall: association against ground truth; "
+                  "ms/kf: median online latency per keyframe")
     for _, title, _ in present:
-        table.add_column(title, justify="left" if title == "method" else "right")
+        if title == "method":
+            table.add_column(title, no_wrap=True)
+        else:
+            table.add_column(title, justify="right")
     for row in rows:
         table.add_row(*[_cell(fmt, row.get(key)) for key, _, fmt in present])
     return table

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from bimgraph.backend.pipeline import initial_alignment, load_model, model_path
-from bimgraph.backend.results import ASSOCIATIONS, EXTRINSIC, TRAJECTORY_BIM
+from bimgraph.backend.results import ASSOCIATIONS, EXTRINSIC, SUMMARY, TRAJECTORY_BIM
 from bimgraph.config import Config
 from bimgraph.errors import FormatError, InputError
 from bimgraph.evaluation.baselines import estimate_extrinsics, matched_planes
@@ -65,6 +65,15 @@ class Evaluation:
         T_B_S = estimate_extrinsics(method, keyframes, matches, self.manual, self.cfg.backend, self.cfg.baselines)
         T_B_C = [T @ kf.pose for T, kf in zip(T_B_S, keyframes)]
         return Estimate(T_B_C, T_B_S[-1], associations)
+
+
+def run_timings(out_dir: Path) -> dict:
+    """The run's total seconds and median per-keyframe latency, from its summary.json."""
+    summary = read_json(Path(out_dir) / SUMMARY)
+    out = {"run_s": summary.get("timings_s", {}).get("total_s")}
+    if "latency_ms" in summary:
+        out["latency_median_ms"] = summary["latency_ms"]["median"]
+    return out
 
 
 def write_metrics(out_dir: Path, metrics: dict) -> None:

@@ -1,0 +1,148 @@
+"""Initial alignment of S to B and the observability of the extrinsic.
+
+The user aligns as the paper's users do: a `T_B_S` guess with its uncertainty, or a few seed
+pairs "plane detected in S <-> BIM face" solved by plane registration (rotation from the
+normals in closed form, then Gauss-Newton on the plane-to-BIM residuals with the guess as a
+prior, so that fewer than three independent normals never make the system singular).
+
+A plane-to-BIM residual, seen as a function of a left perturbation (w, v) of `T_B_S` about
+B's origin, moves the normal by `w x n` and the offset by `-n . v` alone. So the information
+the matched faces give is `sum(I - n n^T)` on rotation and `sum(n n^T)` on translation, and a
+direction is unobservable where that sum has (almost) no weight.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from bimgraph.backend.graph import E, L, X, FactorBuilder, cov_T_B_S, pose3, sigmas_cov
+from bimgraph.config import BackendConfig
+from bimgraph.errors import InputError
+from bimgraph.geometry import make_pose
+
+_WEAK = 1e6  # variance factor of the prior in the directions the seeds observe
+
+
+@dataclass
+class Alignment:
+    """`T_B_S` and its 6x6 covariance (gtsam Pose3 tangent: rotation, then translation)."""
+
+    T_B_S: np.ndarray
+    cov: np.ndarray
+    unobservable: list[dict] = field(default_factory=list)
+
+    @classmethod
+    def from_sigmas(cls, T_B_S: np.ndarray, rot_deg: float, trans_m: float) -> "Alignment":
+        return cls(np.asarray(T_B_S, dtype=float), sigmas_cov(np.radians(rot_deg), trans_m))
+
+
+def unobservable_directions(normals_B: np.ndarray, min_angle_deg: float) -> list[dict]:
+    """Directions of `T_B_S` (rotation axes and translations, in B) that faces with these
+    normals do not fix: where fewer than enough normals leave the plane orthogonal to the
+    direction by at least `min_angle_deg`."""
+    normals_B = np.asarray(normals_B, dtype=float).reshape(-1, 3)
+    weight = np.sin(np.radians(min_angle_deg)) ** 2
+    info_t = normals_B.T @ normals_B
+    info_r = len(normals_B) * np.eye(3) - info_t
+    out = []
+    for kind, info in (("rotation", info_r), ("translation", info_t)):
+        values, vectors = np.linalg.eigh(info)
+        for value, axis in zip(values, vectors.T):
+            if value < weight:
+                axis = axis * np.sign(axis[np.argmax(np.abs(axis))])
+                out.append({"kind": kind, "axis_B": [float(a) for a in axis]})
+    return out
+
+
+def _tangent_directions(T_B_S: np.ndarray, directions: list[dict]):
+    """Each direction (rotation axis or translation in B) as a vector of T_B_S's right tangent."""
+    Ad = pose3(T_B_S).inverse().AdjointMap()  # left perturbation in B -> right perturbation
+    for direction in directions:
+        rotation = direction["kind"] == "rotation"
+        xi_B = np.zeros(6)
+        xi_B[(0 if rotation else 3):(3 if rotation else 6)] = direction["axis_B"]
+        yield rotation, Ad @ xi_B
+
+
+def lock_directions(alignment: Alignment, directions: list[dict], sigma_rot_rad: float, sigma_trans_m: float) -> np.ndarray:
+    """The alignment's covariance with the given directions of `T_B_S` (as from
+    `unobservable_directions`) pinned to sigma: what no face can ever observe stays where the
+    user put it, instead of following model errors."""
+    info = np.linalg.inv(alignment.cov)
+    for rotation, u in _tangent_directions(alignment.T_B_S, directions):
+        info += np.outer(u, u) / (sigma_rot_rad if rotation else sigma_trans_m) ** 2
+    cov = np.linalg.inv(info)
+    return 0.5 * (cov + cov.T)
+
+
+def unlocked_covariance(alignment: Alignment, directions: list[dict]) -> np.ndarray:
+    """What to add to an estimate's covariance so that locked directions report the initial
+    alignment's uncertainty again (they were held, not measured)."""
+    sigma_rot = np.sqrt(np.diag(alignment.cov)[:3].max())
+    sigma_trans = np.sqrt(np.diag(alignment.cov)[3:].max())
+    extra = np.zeros((6, 6))
+    for rotation, u in _tangent_directions(alignment.T_B_S, directions):
+        extra += np.outer(u, u) * (sigma_rot if rotation else sigma_trans) ** 2
+    return extra
+
+
+def _rotation_from_normals(normals_S: np.ndarray, normals_B: np.ndarray, R_prior: np.ndarray) -> np.ndarray:
+    """R_B_S with R n_S ~ n_B (Kabsch); with parallel normals, the prior turned by the least
+    rotation that takes its prediction of the first normal onto the observed one."""
+    H = normals_S.T @ normals_B
+    U, s, Vt = np.linalg.svd(H)
+    if s[1] > 1e-6 * max(s[0], 1e-12):
+        D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+        return Vt.T @ D @ U.T
+    return _least_rotation(R_prior @ normals_S[0], normals_B[0]) @ R_prior
+
+
+def _least_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    axis = np.cross(a, b)
+    s, c = np.linalg.norm(axis), float(a @ b)
+    if s < 1e-12:
+        return np.eye(3)
+    return Rotation.from_rotvec(axis / s * np.arctan2(s, c)).as_matrix()
+
+
+def align_from_seeds(planes_S: np.ndarray, planes_B: np.ndarray, cfg: BackendConfig,
+                     prior: Alignment | None = None) -> Alignment:
+    """`T_B_S` from seed pairs (plane in S, BIM face plane in B), its covariance, and the
+    directions the seeds leave unobservable (which keep the prior's uncertainty)."""
+    planes_S, planes_B = np.asarray(planes_S, float).reshape(-1, 4), np.asarray(planes_B, float).reshape(-1, 4)
+    if len(planes_S) == 0 or len(planes_S) != len(planes_B):
+        raise InputError(f"seed alignment needs pairs of planes, got {len(planes_S)} and {len(planes_B)}")
+    if prior is None:
+        prior = Alignment.from_sigmas(np.eye(4), 180.0, 100.0)
+    R = _rotation_from_normals(planes_S[:, :3], planes_B[:, :3], prior.T_B_S[:3, :3])
+    # offsets: d_B = d_S - n_B . t, regularised toward the prior where the normals say nothing
+    n_B = planes_S[:, :3] @ R.T
+    info_t = n_B.T @ n_B + 1e-6 * np.eye(3)
+    t = np.linalg.solve(info_t, n_B.T @ (planes_S[:, 3] - planes_B[:, 3]) + 1e-6 * prior.T_B_S[:3, 3])
+    guess = make_pose(R, t)
+
+    # the prior speaks only where the seeds are silent, so that it biases nothing else
+    unobservable = unobservable_directions(planes_B[:, :3], cfg.unobservable_min_angle_deg)
+    sigma_rot, sigma_trans = np.sqrt(np.diag(prior.cov)[:3].max()), np.sqrt(np.diag(prior.cov)[3:].max())
+    weak = Alignment(prior.T_B_S, prior.cov * _WEAK)
+    build = FactorBuilder(cfg)
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    graph.add(build.extrinsic_prior(prior.T_B_S, lock_directions(weak, unobservable, sigma_rot, sigma_trans)))
+    values.insert(E, pose3(guess).inverse())
+    # the seed planes are given in S: anchor them at a fixed identity pose
+    graph.add(build.first_pose(0, np.eye(4)))
+    values.insert(X(0), gtsam.Pose3())
+    fixed = np.eye(3) * 1e-12
+    for j, (plane_S, plane_B) in enumerate(zip(planes_S, planes_B)):
+        graph.add(build.anchor_observation(j, plane_S, fixed))
+        graph.add(build.bim(0, j, plane_B))
+        values.insert(L(j), gtsam.OrientedPlane3(plane_S))
+    result = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
+    T_S_B = result.atPose3(E)
+    cov_E = gtsam.Marginals(graph, result).marginalCovariance(E)
+    return Alignment(T_S_B.inverse().matrix(), cov_T_B_S(T_S_B, cov_E), unobservable)
+

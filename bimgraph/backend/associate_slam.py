@@ -1,0 +1,119 @@
+"""Observation -> landmark association (SLAM side).
+
+An observed plane in camera k matches landmark j when the residual of the plane factor that
+would join them, `e = z.errorVector(L_j seen from k)`, passes a chi-square gate with the
+landmark's marginal covariance propagated into the camera plus the observation's own, and when
+the observed polygon comes close enough to the landmark's extent (coplanar walls of different
+rooms must not merge). Matches are one-to-one within the keyframe; the rest become new
+landmarks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.stats import chi2
+
+from bimgraph.backend.landmarks import LandmarkTable, hull_2d, to_plane_2d, transform_points
+from bimgraph.config import SlamAssociationConfig
+
+_INFEASIBLE = 1e12
+
+
+@dataclass
+class Observation:
+    """One plane seen in the camera: (n, d), its 3x3 tangent covariance, its boundary points."""
+
+    index: int
+    plane_C: np.ndarray
+    cov: np.ndarray
+    points_C: np.ndarray
+    area: float | None = None
+
+
+def mahalanobis_to_landmarks(obs: Observation, T_S_C: np.ndarray, landmarks: LandmarkTable, js: np.ndarray) -> np.ndarray:
+    """Squared Mahalanobis distance of the observation to each landmark in `js`: the residual
+    of the plane factor that would join them (`factors.local_plane_error` with the camera as
+    pose), with the landmark's marginal propagated through its Jacobian plus the observation's
+    covariance. Vectorised over landmarks."""
+    T_A_C = landmarks.T_A_S[js] @ T_S_C
+    R, t = T_A_C[:, :3, :3], T_A_C[:, :3, 3]
+    n_A, d_A, B_A = landmarks.planes_A[js, :3], landmarks.planes_A[js, 3], landmarks.bases_A[js]
+    n_pred = np.einsum("jki,jk->ji", R, n_A)
+    d_pred = d_A + np.einsum("jk,jk->j", n_A, t)
+    B_z = gtsam.Unit3(obs.plane_C[:3]).basis()
+    e = np.column_stack([n_pred @ B_z, obs.plane_C[3] - d_pred])
+    # H = d e / d plane_A: [[B_z^T R^T B_A, 0], [-t^T B_A, -1]]
+    H = np.zeros((len(js), 3, 3))
+    H[:, :2, :2] = np.einsum("ki,jlk,jlm->jim", B_z, R, B_A)
+    H[:, 2, :2] = -np.einsum("jk,jkm->jm", t, B_A)
+    H[:, 2, 2] = -1.0
+    S = H @ landmarks.covs_A[js] @ H.transpose(0, 2, 1) + obs.cov
+    return np.einsum("ji,ji->j", e, np.linalg.solve(S, e[:, :, None])[:, :, 0])
+
+
+def extent_gap(obs: Observation, T_A_C: np.ndarray, lm) -> float:
+    """Distance on the landmark's plane between the observed polygon and the landmark's
+    extent (its hull as last grown); 0 when either is unknown."""
+    if len(obs.points_C) == 0 or lm.hull_A is None:
+        return 0.0
+    seen = hull_2d(to_plane_2d(transform_points(T_A_C, obs.points_C), lm.plane_A))
+    return float(seen.distance(lm.hull_A))
+
+
+class SlamAssociator:
+    def __init__(self, cfg: SlamAssociationConfig):
+        self.cfg = cfg
+        self.gate = chi2.ppf(cfg.gate_probability, 3)
+        self.cos_max = np.cos(np.radians(cfg.max_normal_angle_deg))
+
+    def candidates(self, obs: Observation, T_S_C: np.ndarray, planes_in_C: np.ndarray, landmarks: LandmarkTable) -> np.ndarray:
+        """Landmarks close enough in normal, offset and extent to be worth scoring."""
+        ok = (planes_in_C[:, :3] @ obs.plane_C[:3] > self.cos_max) & (
+            np.abs(planes_in_C[:, 3] - obs.plane_C[3]) < self.cfg.max_offset_m)
+        if len(obs.points_C):
+            points_S = transform_points(T_S_C, obs.points_C)
+            centre = points_S.mean(axis=0)
+            radius = np.linalg.norm(points_S - centre, axis=1).max()
+            # bounding spheres: a lower bound of the exact extent gap
+            gap = np.linalg.norm(landmarks.centres_S - centre, axis=1) - landmarks.radii - radius
+            ok &= ~(gap > self.cfg.max_extent_gap_m)
+        return np.flatnonzero(ok)
+
+    def associate(self, observations: list[Observation], T_S_C: np.ndarray, landmarks: LandmarkTable):
+        """Landmark id (or None for a new landmark) and Mahalanobis distance for each
+        observation, given the camera pose estimate `T_S_C`."""
+        n_obs = len(observations)
+        out: list[tuple[int | None, float]] = [(None, float("nan"))] * n_obs
+        if n_obs == 0 or len(landmarks) == 0:
+            return out
+        planes_in_C = _planes_to_frame(landmarks.planes_S, T_S_C)
+        pairs: dict[tuple[int, int], float] = {}
+        for i, obs in enumerate(observations):
+            js = self.candidates(obs, T_S_C, planes_in_C, landmarks)
+            if len(js) == 0:
+                continue
+            d2 = mahalanobis_to_landmarks(obs, T_S_C, landmarks, js)
+            for j, score in zip(js[d2 <= self.gate], d2[d2 <= self.gate]):
+                if extent_gap(obs, landmarks.T_A_S[j] @ T_S_C, landmarks[j]) <= self.cfg.max_extent_gap_m:
+                    pairs[(i, int(j))] = float(score)
+        if not pairs:
+            return out
+        cols = sorted({j for _, j in pairs})
+        cost = np.full((n_obs, len(cols)), _INFEASIBLE)
+        for (i, j), d2 in pairs.items():
+            cost[i, cols.index(j)] = d2
+        for i, c in zip(*linear_sum_assignment(cost)):
+            if cost[i, c] < _INFEASIBLE:
+                out[i] = (cols[c], float(cost[i, c]))
+        return out
+
+
+def _planes_to_frame(planes_S: np.ndarray, T_S_C: np.ndarray) -> np.ndarray:
+    """Many planes given in S expressed in C (vectorised `plane_to_frame(plane, T_S_C)`)."""
+    R, t = T_S_C[:3, :3], T_S_C[:3, 3]
+    n = planes_S[:, :3]
+    return np.hstack([n @ R, (planes_S[:, 3] + n @ t)[:, None]])

@@ -1,0 +1,158 @@
+"""The factor graph: keyframe poses `X(k) = T_S_Ck`, plane landmarks `L(j)` anchored in the
+keyframe that first saw them, and the extrinsic `E = T_S_B` (its inverse is the reported
+`T_B_S`; stored this way round the plane-to-BIM factor is gtsam's C++
+LocalOrientedPlane3Factor).
+
+`FactorBuilder` makes the factors from the configuration (shared by the online iSAM2 graph and
+the offline batch graph); `IncrementalGraph` wraps iSAM2 and keeps the index of every
+plane-to-BIM factor so that a revised association can be removed again.
+"""
+
+from __future__ import annotations
+
+import time
+
+import gtsam
+import numpy as np
+
+from bimgraph.config import BackendConfig
+from factors import local_plane_factor, plane_prior_factor, plane_to_bim_factor
+
+X = gtsam.symbol_shorthand.X
+L = gtsam.symbol_shorthand.L
+E = gtsam.symbol("e", 0)
+
+
+def pose3(T: np.ndarray) -> gtsam.Pose3:
+    return gtsam.Pose3(np.asarray(T, dtype=float))
+
+
+def sigmas_cov(rot_rad: float, trans_m: float) -> np.ndarray:
+    return np.diag([rot_rad**2] * 3 + [trans_m**2] * 3)
+
+
+def plane_cov(normal_rad: float, offset_m: float) -> np.ndarray:
+    return np.diag([normal_rad**2, normal_rad**2, offset_m**2])
+
+
+def extrinsic_cov_E(T_B_S: np.ndarray, cov_T_B_S: np.ndarray) -> np.ndarray:
+    """Covariance of `E = T_S_B` from that of `T_B_S` (both in gtsam's right-perturbation
+    tangent): inverting a pose maps xi to -Ad(T) xi."""
+    Ad = pose3(T_B_S).AdjointMap()
+    return Ad @ cov_T_B_S @ Ad.T
+
+
+def cov_T_B_S(T_S_B: gtsam.Pose3, cov_E: np.ndarray) -> np.ndarray:
+    Ad = T_S_B.AdjointMap()
+    return Ad @ cov_E @ Ad.T
+
+
+def _robust(kernel: str, width: float, base: gtsam.noiseModel.Base) -> gtsam.noiseModel.Base:
+    if kernel == "none":
+        return base
+    estimator = {"huber": gtsam.noiseModel.mEstimator.Huber, "cauchy": gtsam.noiseModel.mEstimator.Cauchy}[kernel]
+    return gtsam.noiseModel.Robust.Create(estimator.Create(width), base)
+
+
+class FactorBuilder:
+    """Every factor of the graph, with its noise model from the configuration."""
+
+    def __init__(self, cfg: BackendConfig):
+        n = cfg.noise
+        self.cfg = cfg
+        self.first_pose_noise = gtsam.noiseModel.Gaussian.Covariance(
+            sigmas_cov(np.radians(n.prior_first_pose_rot_deg), n.prior_first_pose_trans_m))
+        self.default_odometry_cov = sigmas_cov(np.radians(n.odometry_rot_deg), n.odometry_trans_m)
+        self.default_plane_cov = plane_cov(np.radians(n.plane_normal_deg), n.plane_offset_m)
+        self.bim_noise = _robust(n.bim_kernel, n.bim_kernel_width, gtsam.noiseModel.Diagonal.Sigmas(
+            [np.radians(n.bim_normal_deg)] * 2 + [n.bim_offset_m]))
+
+    def first_pose(self, k: int, T_S_C: np.ndarray) -> gtsam.NonlinearFactor:
+        return gtsam.PriorFactorPose3(X(k), pose3(T_S_C), self.first_pose_noise)
+
+    def odometry(self, k_prev: int, k: int, T_prev_k: np.ndarray, cov: np.ndarray | None) -> gtsam.NonlinearFactor:
+        noise = gtsam.noiseModel.Gaussian.Covariance(self.default_odometry_cov if cov is None else np.asarray(cov))
+        return gtsam.BetweenFactorPose3(X(k_prev), X(k), pose3(T_prev_k), noise)
+
+    def plane_noise(self, cov: np.ndarray | None) -> gtsam.noiseModel.Gaussian:
+        return gtsam.noiseModel.Gaussian.Covariance(self.default_plane_cov if cov is None else np.asarray(cov))
+
+    def anchor_observation(self, j: int, plane_C: np.ndarray, cov) -> gtsam.NonlinearFactor:
+        return plane_prior_factor(plane_C, self.plane_noise(cov), L(j))
+
+    def observation(self, k: int, anchor: int, j: int, plane_C: np.ndarray, cov) -> gtsam.NonlinearFactor:
+        n = self.cfg.noise
+        noise = _robust(n.plane_kernel, n.plane_kernel_width, self.plane_noise(cov))
+        return local_plane_factor(plane_C, noise, X(k), X(anchor), L(j))
+
+    def bim(self, anchor: int, j: int, plane_B: np.ndarray) -> gtsam.NonlinearFactor:
+        return plane_to_bim_factor(plane_B, self.bim_noise, E, X(anchor), L(j))
+
+    def extrinsic_prior(self, T_B_S: np.ndarray, cov_T_B_S_: np.ndarray) -> gtsam.NonlinearFactor:
+        noise = gtsam.noiseModel.Gaussian.Covariance(extrinsic_cov_E(T_B_S, cov_T_B_S_))
+        return gtsam.PriorFactorPose3(E, pose3(T_B_S).inverse(), noise)
+
+
+class IncrementalGraph:
+    """iSAM2 over the graph. Factors and new values are queued, then `update` applies them."""
+
+    def __init__(self, cfg: BackendConfig, T_B_S: np.ndarray, cov_T_B_S_: np.ndarray):
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(cfg.isam2.relinearize_threshold)
+        params.relinearizeSkip = cfg.isam2.relinearize_skip
+        self.cfg = cfg
+        self.isam = gtsam.ISAM2(params)
+        self.build = FactorBuilder(cfg)
+        self._factors = gtsam.NonlinearFactorGraph()
+        self._values = gtsam.Values()
+        self.base = gtsam.NonlinearFactorGraph()
+        self._bim_queue: list[int] = []  # landmark of each queued plane-to-BIM factor, in order
+        self._remove: list[int] = []
+        self.bim_index: dict[int, int] = {}  # landmark -> its plane-to-BIM factor in iSAM2
+        self.update_seconds = 0.0  # total time inside iSAM2 updates
+        self.add(self.build.extrinsic_prior(T_B_S, cov_T_B_S_))
+        self._values.insert(E, pose3(T_B_S).inverse())
+
+    def add(self, factor: gtsam.NonlinearFactor) -> None:
+        """Queue a factor; all but the plane-to-BIM ones are also kept in `base`, the graph a
+        batch optimiser starts from."""
+        self._factors.add(factor)
+        self.base.add(factor)
+
+    def insert_pose(self, k: int, T_S_C: np.ndarray) -> None:
+        self._values.insert(X(k), pose3(T_S_C))
+
+    def insert_plane(self, j: int, plane: np.ndarray) -> None:
+        self._values.insert(L(j), gtsam.OrientedPlane3(plane))
+
+    def add_bim(self, j: int, anchor: int, plane_B: np.ndarray) -> None:
+        if j in self.bim_index or j in self._bim_queue:
+            raise ValueError(f"landmark {j} already has a plane-to-BIM factor")
+        self._bim_queue.append((j, self._factors.size()))
+        self._factors.add(self.build.bim(anchor, j, plane_B))
+
+    def remove_bim(self, j: int) -> None:
+        self._remove.append(self.bim_index.pop(j))
+
+    def update(self, keys: list[int] = ()) -> gtsam.Values:
+        """Apply the queued factors and values; return the new estimates of `keys` (the first
+        estimate after an update pays for iSAM2's back-substitution, so it is timed with it)."""
+        start = time.perf_counter()
+        result = self.isam.update(self._factors, self._values, self._remove)
+        estimate = self.isam.calculateEstimate(sorted(set(keys))) if keys else None
+        self.update_seconds += time.perf_counter() - start
+        indices = result.getNewFactorsIndices()
+        for j, position in self._bim_queue:
+            self.bim_index[j] = indices[position]
+        self._factors = gtsam.NonlinearFactorGraph()
+        self._values = gtsam.Values()
+        self._bim_queue, self._remove = [], []
+        return estimate
+
+    def marginal(self, key: int) -> np.ndarray:
+        return self.isam.marginalCovariance(key)
+
+    def joint(self, keys: list[int]) -> np.ndarray:
+        """Joint marginal covariance of `keys`, one matrix with blocks in the order given."""
+        joint = self.isam.jointMarginalCovariance(list(keys))
+        return np.block([[joint.at(a, b) for b in keys] for a in keys])

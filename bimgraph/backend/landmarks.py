@@ -1,0 +1,173 @@
+"""Plane landmarks as the association sees them: the current estimate in the anchor keyframe
+A, its marginal covariance, its extent (convex hull of every observed polygon, in A) and its
+match to a BIM face. The graph holds the estimates; this is the cache association reads."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+import shapely
+from shapely.geometry import MultiPoint, Polygon
+
+from bimgraph.geometry import inverse, plane_from_frame
+
+
+def plane_basis(n: np.ndarray) -> np.ndarray:
+    """3x2 orthonormal basis of the plane with normal n (gtsam's Unit3 basis)."""
+    return gtsam.Unit3(np.asarray(n, dtype=float)).basis()
+
+
+def to_plane_2d(points: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """Points (N x 3) projected into the plane's own 2-D frame (origin at its foot point)."""
+    return (points + plane[3] * plane[:3]) @ plane_basis(plane[:3])
+
+
+def from_plane_2d(uv: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    return -plane[3] * plane[:3] + uv @ plane_basis(plane[:3]).T
+
+
+def hull_2d(uv: np.ndarray):
+    """Convex hull of 2-D points as a shapely geometry (a polygon, or less when degenerate)."""
+    return MultiPoint(uv).convex_hull
+
+
+def transform_points(T_A_B: np.ndarray, points_B: np.ndarray) -> np.ndarray:
+    return points_B @ T_A_B[:3, :3].T + T_A_B[:3, 3]
+
+
+@dataclass
+class Landmark:
+    id: int
+    anchor: int
+    plane_A: np.ndarray
+    cov_A: np.ndarray
+    T_S_A: np.ndarray
+    extent_A: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    area: float = 0.0
+    observations: list[tuple[int, int]] = field(default_factory=list)
+    face: str | None = None
+    score: float = float("nan")
+    rejected: set[str] = field(default_factory=set)  # faces it was matched to and unmatched from
+    hull_A: object = None  # the extent as a shapely geometry in the plane's 2-D frame (when grown)
+    centres_A: list = field(default_factory=list)  # per observation, its centre in A (or None)
+    observation_faces: list | None = None  # per observation, the face behind it, once resolved
+    bim_attempt: int = 0  # observation count when last scored against the BIM faces
+    merged_into: int | None = None  # set when an offline round found it to be another landmark's plane
+
+    def absorb(self, other: "Landmark", max_points: int) -> None:
+        """Take over the observations and extent of a landmark found to be the same plane."""
+        T_A_B = inverse(self.T_S_A) @ other.T_S_A
+        moved = [None if c is None else transform_points(T_A_B, c[None])[0] for c in other.centres_A]
+        pairs = sorted(zip(self.observations + other.observations, self.centres_A + moved), key=lambda p: p[0])
+        self.observations = [o for o, _ in pairs]
+        self.centres_A = [c for _, c in pairs]
+        self.grow_extent(transform_points(T_A_B, other.extent_A), other.area, max_points)
+        other.merged_into = self.id
+
+    def add_observation(self, k: int, index: int, points_A: np.ndarray, area: float | None, max_points: int) -> None:
+        self.observations.append((k, index))
+        self.centres_A.append(points_A.mean(axis=0) if len(points_A) else None)
+        self.grow_extent(points_A, area, max_points)
+
+    def centres_in(self, T_X_S: np.ndarray) -> list[np.ndarray | None]:
+        T_X_A = T_X_S @ self.T_S_A
+        return [None if c is None else T_X_A[:3, :3] @ c + T_X_A[:3, 3] for c in self.centres_A]
+
+    @property
+    def plane_S(self) -> np.ndarray:
+        return plane_from_frame(self.plane_A, self.T_S_A)
+
+    @property
+    def keyframes(self) -> list[int]:
+        return sorted({k for k, _ in self.observations})
+
+    def grow_extent(self, points_A: np.ndarray, area: float | None, max_points: int) -> None:
+        """Add observed boundary points (in A) to the extent: the hull on the current plane."""
+        if len(points_A) == 0:
+            if area is not None:
+                self.area = max(self.area, area)
+            return
+        uv = to_plane_2d(np.vstack([self.extent_A, points_A]), self.plane_A)
+        hull = hull_2d(uv)
+        if isinstance(hull, Polygon):
+            coords = np.asarray(hull.exterior.coords)[:-1]
+            if len(coords) > max_points:
+                coords = np.asarray(hull.simplify(0.02).exterior.coords)[:-1]
+            self.area = max(hull.area, area or 0.0)
+        else:
+            coords = np.asarray(shapely.get_coordinates(hull))
+            self.area = max(self.area, area or 0.0)
+        self.extent_A = from_plane_2d(coords, self.plane_A)
+        self.hull_A = hull
+
+    def extent_in(self, T_X_S: np.ndarray) -> np.ndarray:
+        """The extent's points in frame X, given T_X_S."""
+        return transform_points(T_X_S @ self.T_S_A, self.extent_A)
+
+
+class LandmarkTable:
+    """Every landmark, with what gating needs stacked in arrays: planes in S and in their
+    anchors, anchor poses, covariances, Unit3 bases, and a bounding sphere of each extent in S."""
+
+    def __init__(self):
+        self.items: list[Landmark] = []
+        self.planes_S = np.zeros((0, 4))
+        self.planes_A = np.zeros((0, 4))
+        self.T_A_S = np.zeros((0, 4, 4))
+        self.covs_A = np.zeros((0, 3, 3))
+        self.bases_A = np.zeros((0, 3, 2))
+        self.centres_S = np.zeros((0, 3))
+        self.radii = np.zeros(0)  # inf where the extent is unknown
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def __getitem__(self, j: int) -> Landmark:
+        return self.items[j]
+
+    def add(self, landmark: Landmark) -> None:
+        assert landmark.id == len(self.items)
+        self.items.append(landmark)
+        self.planes_S = np.vstack([self.planes_S, np.zeros(4)])
+        self.planes_A = np.vstack([self.planes_A, np.zeros(4)])
+        self.T_A_S = np.concatenate([self.T_A_S, np.eye(4)[None]])
+        self.covs_A = np.concatenate([self.covs_A, np.eye(3)[None]])
+        self.bases_A = np.concatenate([self.bases_A, np.zeros((1, 3, 2))])
+        self.centres_S = np.vstack([self.centres_S, np.zeros(3)])
+        self.radii = np.append(self.radii, np.inf)
+        self.set_estimate(landmark.id, landmark.plane_A, landmark.T_S_A, landmark.cov_A)
+
+    def set_estimate(self, j: int, plane_A: np.ndarray, T_S_A: np.ndarray, cov_A: np.ndarray | None = None) -> None:
+        lm = self.items[j]
+        lm.plane_A, lm.T_S_A = plane_A, T_S_A
+        if cov_A is not None:
+            lm.cov_A = cov_A
+            self.covs_A[j] = cov_A
+        self.planes_A[j] = plane_A
+        self.planes_S[j] = lm.plane_S
+        self.T_A_S[j] = inverse(T_S_A)
+        self.bases_A[j] = plane_basis(plane_A[:3])
+        self.update_sphere(j)
+
+    def update_sphere(self, j: int) -> None:
+        lm = self.items[j]
+        if len(lm.extent_A):
+            points_S = transform_points(lm.T_S_A, lm.extent_A)
+            self.centres_S[j] = points_S.mean(axis=0)
+            self.radii[j] = np.linalg.norm(points_S - self.centres_S[j], axis=1).max()
+
+
+def observation_points(polygon, centre) -> np.ndarray:
+    """The points an observation contributes to an extent (its polygon, else its centre)."""
+    if polygon:
+        return np.asarray(polygon, dtype=float)
+    if centre is not None:
+        return np.asarray(centre, dtype=float)[None, :]
+    return np.zeros((0, 3))
+
+
+def anchor_from(T_S_C: np.ndarray, T_S_A: np.ndarray) -> np.ndarray:
+    """T_A_C."""
+    return inverse(T_S_A) @ T_S_C

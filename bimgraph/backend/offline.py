@@ -1,0 +1,207 @@
+"""Offline estimation: the whole sequence at once.
+
+A causal pass of the online estimator first associates observations to landmarks and gives
+the starting estimate (a batch start from the drifting front-end alone leaves the far walls
+too uncertain to match). Then, in rounds: the graph is built from the associations,
+Levenberg-Marquardt smooths it, and with the smoothed estimates and marginals the matches that
+stopped fitting are revised, unmatched landmarks are associated, landmarks spanning coplanar
+sections of a wall are split per section, and landmarks matched to the same BIM face are
+merged into one (the loop closures a drifting causal pass misses); until a
+round changes nothing.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+
+import gtsam
+import numpy as np
+
+from bimgraph.backend.alignment import Alignment, unobservable_directions
+from bimgraph.backend.associate_bim import PlaneInB, plane_in_B
+from bimgraph.backend.graph import E, L, X, cov_T_B_S, pose3
+from bimgraph.backend.landmarks import Landmark, transform_points
+from bimgraph.backend.online import Backend, Oracle, observations_of, revision_reason, unmatch
+from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
+from bimgraph.bim.planemap import PlaneMap
+from bimgraph.config import BackendConfig
+from bimgraph.geometry import inverse, plane_from_frame
+from bimgraph.sequence.format import Keyframe
+from factors.plane import predict_local_plane
+
+
+class OfflineEstimator:
+    def __init__(self, plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,
+                 listener: Listener | None = None, oracle: Oracle | None = None):
+        self.cfg = cfg
+        self.listener = listener or Listener()
+        # the causal pass reports nothing: the listener hears the smoothed results
+        self.online = Backend(plane_map, cfg, initial, None, oracle)
+        self.faces, self.bim, self.landmarks = self.online.faces, self.online.bim, self.online.landmarks
+        self.oracle = oracle
+
+    def run(self, keyframes: list[Keyframe]) -> Results:
+        start = time.perf_counter()
+        for kf in keyframes:
+            self.online.process(kf)
+        timings = {"online_pass_s": time.perf_counter() - start}
+        values = self.online.graph.isam.calculateEstimate()
+        observations = {kf.index: observations_of(kf, self.online.build.default_plane_cov) for kf in keyframes}
+
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(self.cfg.offline.max_iterations)
+        params.setRelativeErrorTol(self.cfg.offline.relative_error_tol)
+        rounds, t_opt, t_assoc = 0, 0.0, 0.0
+        while True:
+            rounds += 1
+            t0 = time.perf_counter()
+            graph = self._graph(keyframes, observations)
+            values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+            marginals = gtsam.Marginals(graph, values)
+            t1 = time.perf_counter()
+            t_opt += t1 - t0
+            self._refresh(values)
+            changed = self.oracle is None and rounds <= self.cfg.offline.max_rounds and (
+                self._revise(values) | self._associate(values, marginals) | self._split(values) | self._merge(values))
+            t_assoc += time.perf_counter() - t1
+            if not changed:
+                break
+        timings.update(optimisation_s=t_opt, bim_association_s=t_assoc, total_s=time.perf_counter() - start)
+        return self._results(keyframes, values, marginals, timings, rounds)
+
+    def _active(self):
+        return [lm for lm in self.landmarks.items if lm.merged_into is None]
+
+    def _graph(self, keyframes: list[Keyframe], observations) -> gtsam.NonlinearFactorGraph:
+        """The whole graph, from the front-end poses and the current associations."""
+        build = self.online.build
+        graph = gtsam.NonlinearFactorGraph()
+        graph.add(build.extrinsic_prior(self.online.prior.T_B_S, self.online.prior.cov))
+        graph.add(build.first_pose(keyframes[0].index, keyframes[0].pose))
+        for previous, kf in zip(keyframes, keyframes[1:]):
+            graph.add(build.odometry(previous.index, kf.index, inverse(previous.pose) @ kf.pose, kf.cov))
+        for lm in self._active():
+            for k, i in lm.observations:
+                obs = observations[k][i]
+                graph.add(build.anchor_observation(lm.id, obs.plane_C, obs.cov) if k == lm.anchor else
+                          build.observation(k, lm.anchor, lm.id, obs.plane_C, obs.cov))
+            if lm.face is not None:
+                graph.add(self._bim_factor(lm))
+        return graph
+
+    def _split(self, values: gtsam.Values) -> bool:
+        """A landmark whose observations lie on several coplanar sections of a wall becomes one
+        landmark per section: built, the sections may differ by centimetres."""
+        T_B_S = values.atPose3(E).inverse().matrix()
+        split = False
+        for lm in self._active():
+            faces = self.faces.observation_faces(lm.face, lm.centres_in(T_B_S))
+            counts = Counter(faces)
+            if lm.face is None or len(counts) == 1:
+                continue
+            lm.face = counts.most_common(1)[0][0]
+            for face in set(counts) - {lm.face}:
+                moved = [n for n, f in enumerate(faces) if f == face]
+                anchor = lm.observations[moved[0]][0]
+                T_S_A = values.atPose3(X(anchor)).matrix()
+                T_new_old = inverse(T_S_A) @ lm.T_S_A
+                new = Landmark(len(self.landmarks), anchor, plane_from_frame(lm.plane_A, T_new_old), lm.cov_A, T_S_A,
+                               face=face, score=lm.score)
+                for n in moved:
+                    centre = lm.centres_A[n]
+                    points = np.zeros((0, 3)) if centre is None else transform_points(T_new_old, centre[None])
+                    new.add_observation(*lm.observations[n], points, None, self.cfg.slam_association.extent_max_points)
+                self.landmarks.add(new)
+                values.insert(L(new.id), gtsam.OrientedPlane3(new.plane_A))
+                self.listener.on_association(new.id, face, new.score)
+            kept = [n for n, f in enumerate(faces) if f == lm.face]
+            lm.observations = [lm.observations[n] for n in kept]
+            lm.centres_A = [lm.centres_A[n] for n in kept]
+            split = True
+        return split
+
+    def _merge(self, values: gtsam.Values) -> bool:
+        """Landmarks matched to one BIM face are one plane: the oldest absorbs the others.
+        (Coplanar sections of a wall stay apart: built, they may differ.)"""
+        by_face: dict[str, list] = {}
+        for lm in self._active():
+            if lm.face is not None:
+                by_face.setdefault(lm.face, []).append(lm)
+        merged = False
+        for same in by_face.values():
+            keep = min(same, key=lambda lm: (lm.anchor, lm.id))
+            for other in same:
+                if other is not keep:
+                    keep.absorb(other, self.cfg.slam_association.extent_max_points)
+                    values.erase(L(other.id))
+                    merged = True
+        return merged
+
+    def _results(self, keyframes, values, marginals, timings, rounds) -> Results:
+        T_S_B = values.atPose3(E)
+        T_B_S = T_S_B.inverse().matrix()
+        cov = cov_T_B_S(T_S_B, marginals.marginalCovariance(E)) + self.online.locked_cov
+        T_S_C = [values.atPose3(X(kf.index)).matrix() for kf in keyframes]
+        self.online.resolve_faces(T_B_S)
+        face_of, landmark_of = {}, {}
+        for lm in self._active():
+            for obs, face in zip(lm.observations, lm.observation_faces):
+                face_of[obs], landmark_of[obs] = face, lm.id
+        for kf, pose in zip(keyframes, T_S_C):
+            self.listener.on_keyframe(KeyframeResult(
+                kf.index, kf.stamp, pose, T_B_S @ pose, T_B_S, cov,
+                [Association(i, landmark_of[(kf.index, i)], face_of[(kf.index, i)]) for i in range(len(kf.planes))],
+                float("nan")))
+        faces = sorted({lm.face for lm in self._active() if lm.face is not None})
+        normals = self.faces.planes[[self.faces.row[f] for f in faces], :3] if faces else np.zeros((0, 3))
+        return Results(mode="offline", indices=[kf.index for kf in keyframes], stamps=[kf.stamp for kf in keyframes],
+                       T_S_C=T_S_C, T_B_C=[T_B_S @ p for p in T_S_C], T_B_S=T_B_S, cov_T_B_S=cov,
+                       unobservable=unobservable_directions(normals, self.cfg.unobservable_min_angle_deg),
+                       landmarks=self._active(), timings=timings, rounds=rounds)
+
+    def _refresh(self, values: gtsam.Values) -> None:
+        for lm in self._active():
+            self.landmarks.set_estimate(lm.id, values.atOrientedPlane3(L(lm.id)).planeCoefficients(),
+                                        values.atPose3(X(lm.anchor)).matrix())
+
+    def _bim_factor(self, lm) -> gtsam.NonlinearFactor:
+        return self.online.build.bim(lm.anchor, lm.id, self.faces.planes[self.faces.row[lm.face]])
+
+    def _revise(self, values: gtsam.Values) -> bool:
+        changed = False
+        T_S_B = values.atPose3(E)
+        for lm in self._active():
+            if lm.face is None:
+                continue
+            plane_B = predict_local_plane(T_S_B, pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A))
+            reason = revision_reason(plane_B, self.faces.planes[self.faces.row[lm.face]], self.cfg.bim_association)
+            if reason is not None:
+                unmatch(lm, reason, self.listener)
+                changed = True
+        return changed
+
+    def _associate(self, values: gtsam.Values, marginals: gtsam.Marginals) -> bool:
+        todo = [lm for lm in self._active() if lm.face is None and self.bim.eligible(lm.area, len(lm.observations))]
+        if not todo:
+            return False
+        T_S_B = values.atPose3(E)
+        T_B_S = T_S_B.inverse().matrix()
+        candidates = []
+        for lm in todo:
+            keys = [E, X(lm.anchor), L(lm.id)]
+            joint = marginals.jointMarginalCovariance(keys)
+            cov = np.block([[joint.at(a, b) for b in keys] for a in keys])
+            plane_B, cov_B = plane_in_B(T_S_B, pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A), cov)
+            candidates.append(PlaneInB(lm.id, plane_B, cov_B, lm.extent_in(T_B_S), lm.area))
+        matches = self.bim.match(candidates)
+        for m in matches:
+            lm = self.landmarks[m.landmark]
+            lm.face, lm.score = m.face, m.score
+            self.listener.on_association(lm.id, m.face, m.score)
+        return bool(matches)
+
+
+def run_offline(keyframes: list[Keyframe], plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,
+                listener: Listener | None = None, oracle: Oracle | None = None) -> Results:
+    return OfflineEstimator(plane_map, cfg, initial, listener, oracle).run(keyframes)

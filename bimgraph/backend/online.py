@@ -1,0 +1,251 @@
+"""Online estimation: keyframe by keyframe, one iSAM2 update plus the plane-to-BIM factors it
+triggers, emitting the causal `T_B_C` and `T_B_S` (with covariance) after every keyframe."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+
+import gtsam
+import numpy as np
+
+from bimgraph.backend.alignment import Alignment, lock_directions, unlocked_covariance, unobservable_directions
+from bimgraph.backend.associate_bim import BimAssociator, FaceIndex, PlaneInB, plane_in_B
+from bimgraph.backend.associate_slam import Observation, SlamAssociator
+from bimgraph.backend.graph import E, L, X, IncrementalGraph, cov_T_B_S
+from bimgraph.backend.landmarks import Landmark, LandmarkTable, observation_points, transform_points
+from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
+from bimgraph.bim.planemap import PlaneMap
+from bimgraph.config import BackendConfig
+from bimgraph.geometry import inverse, normalise_plane
+from bimgraph.sequence.format import Keyframe
+from factors.plane import predict_local_plane
+
+Oracle = Mapping[tuple[int, int], "str | None"]
+
+
+def observations_of(kf: Keyframe, default_cov: np.ndarray) -> list[Observation]:
+    return [Observation(i, normalise_plane(p.plane), default_cov if p.cov is None else np.asarray(p.cov),
+                        observation_points(p.polygon, p.centre), p.area) for i, p in enumerate(kf.planes)]
+
+
+def misfit(plane_B: np.ndarray, face_plane: np.ndarray) -> tuple[float, float]:
+    """How far a plane in B is from a face plane: (angle in degrees, offset in metres)."""
+    angle = float(np.degrees(np.arccos(np.clip(plane_B[:3] @ face_plane[:3], -1.0, 1.0))))
+    return angle, abs(float(plane_B[3] - face_plane[3]))
+
+
+def revision_reason(plane_B: np.ndarray, face_plane: np.ndarray, cfg) -> str | None:
+    """Why a matched landmark no longer fits its face, or None if it does."""
+    angle, offset = misfit(plane_B, face_plane)
+    if angle > cfg.revision_normal_deg:
+        return f"normal {angle:.1f} deg off"
+    if offset > cfg.revision_offset_m:
+        return f"offset {offset:.3f} m off"
+    return None
+
+
+class Backend:
+    """The online estimator. `process(keyframe)` returns that keyframe's causal result.
+
+    `oracle` maps (keyframe index, observation index) to the true face id (or None): landmarks
+    are then one per face and matched at once, the reference the association is measured by.
+    """
+
+    def __init__(self, plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,
+                 listener: Listener | None = None, oracle: Oracle | None = None):
+        self.cfg = cfg
+        self.faces = FaceIndex(plane_map, cfg.bim_association)
+        self.bim = BimAssociator(self.faces, cfg.bim_association)
+        self.slam = SlamAssociator(cfg.slam_association)
+        # directions no face of the map can observe keep the initial alignment
+        self.never_observable = unobservable_directions(self.faces.planes[:, :3], cfg.unobservable_min_angle_deg)
+        self.prior = Alignment(initial.T_B_S, lock_directions(initial, self.never_observable,
+                                                              np.radians(cfg.lock_rot_deg), cfg.lock_trans_m))
+        self.locked_cov = unlocked_covariance(initial, self.never_observable)
+        self.graph = IncrementalGraph(cfg, self.prior.T_B_S, self.prior.cov)
+        self.build = self.graph.build
+        self.landmarks = LandmarkTable()
+        self.listener = listener or Listener()
+        self.oracle = oracle
+        self._landmark_of_face: dict[str, int] = {}
+        self._previous: tuple[int, np.ndarray, np.ndarray] | None = None  # index, front-end pose, estimate
+        self._count = 0
+
+    # -- the step ---------------------------------------------------------------------------
+    def process(self, kf: Keyframe) -> KeyframeResult:
+        start = time.perf_counter()
+        isam2_before = self.graph.update_seconds
+        k = kf.index
+        T_S_C_guess = self._add_pose(kf)
+        observations = observations_of(kf, self.build.default_plane_cov)
+        matches = self._match_observations(k, observations, T_S_C_guess)
+        observed = [self._add_observation(k, obs, j, T_S_C_guess) for obs, j in zip(observations, matches)]
+        self._count += 1
+        refresh = range(len(self.landmarks)) if self._count % self.cfg.isam2.refresh_every == 0 else observed
+        values = self.graph.update(self._keys_of(refresh) + [X(k), E])
+        self._refresh(values, refresh, [j for j in set(observed) if self._covariance_due(j)])
+
+        if self._revise(observed, values.atPose3(E)) | self._associate(observed, values.atPose3(E)):
+            for _ in range(self.cfg.isam2.extra_updates):
+                self.graph.update()
+            values = self.graph.update(self._keys_of(observed) + [X(k), E])
+            self._refresh(values, observed, [])
+
+        T_S_C = values.atPose3(X(k)).matrix()
+        T_S_B = values.atPose3(E)
+        T_B_S = T_S_B.inverse().matrix()
+        self._previous = (k, kf.pose, T_S_C)
+        result = KeyframeResult(
+            index=k, stamp=kf.stamp, T_S_C=T_S_C, T_B_C=T_B_S @ T_S_C, T_B_S=T_B_S,
+            cov_T_B_S=cov_T_B_S(T_S_B, self.graph.marginal(E)) + self.locked_cov,
+            associations=[Association(obs.index, j, self._face_of(j, T_B_S)) for obs, j in zip(observations, observed)],
+            latency_s=time.perf_counter() - start, isam2_s=self.graph.update_seconds - isam2_before)
+        self.listener.on_keyframe(result)
+        return result
+
+    def _face_of(self, j: int, T_B_S: np.ndarray) -> str | None:
+        """The face behind landmark j's latest observation (a member of its matched group)."""
+        lm = self.landmarks[j]
+        return self.faces.observation_faces(lm.face, lm.centres_in(T_B_S)[-1:])[0]
+
+    def resolve_faces(self, T_B_S: np.ndarray) -> None:
+        """Give every observation of every matched landmark its face, with the current estimate."""
+        for lm in self.landmarks.items:
+            lm.observation_faces = self.faces.observation_faces(lm.face, lm.centres_in(T_B_S))
+
+    def unobservable(self) -> list[dict]:
+        faces = {lm.face for lm in self.landmarks.items if lm.face is not None}
+        normals = self.faces.planes[[self.faces.row[f] for f in sorted(faces)], :3] if faces else np.zeros((0, 3))
+        return unobservable_directions(normals, self.cfg.unobservable_min_angle_deg)
+
+    # -- pieces -----------------------------------------------------------------------------
+    def _add_pose(self, kf: Keyframe) -> np.ndarray:
+        if self._previous is None:
+            self.graph.add(self.build.first_pose(kf.index, kf.pose))
+            guess = kf.pose
+        else:
+            k_prev, T_S_Cprev_frontend, T_S_Cprev = self._previous
+            T_prev_k = inverse(T_S_Cprev_frontend) @ kf.pose
+            self.graph.add(self.build.odometry(k_prev, kf.index, T_prev_k, kf.cov))
+            guess = T_S_Cprev @ T_prev_k
+        self.graph.insert_pose(kf.index, guess)
+        return guess
+
+    def _match_observations(self, k: int, observations: list[Observation], T_S_C: np.ndarray) -> list[int | None]:
+        matches = [j for j, _ in self.slam.associate(observations, T_S_C, self.landmarks)]
+        if self.oracle is None:
+            return matches
+        out = []
+        for obs, j in zip(observations, matches):
+            face = self.oracle.get((k, obs.index))
+            if face is not None:
+                out.append(self._landmark_of_face.get(face))
+            else:  # clutter, floors: associated as usual but never onto a face's landmark
+                out.append(j if j is not None and self.landmarks[j].face is None else None)
+        return out
+
+    def _add_observation(self, k: int, obs: Observation, j: int | None, T_S_C: np.ndarray) -> int:
+        if j is None:
+            j = len(self.landmarks)
+            self.landmarks.add(Landmark(j, k, obs.plane_C, obs.cov, T_S_C))
+            self.graph.insert_plane(j, obs.plane_C)
+            self.graph.add(self.build.anchor_observation(j, obs.plane_C, obs.cov))
+            face = self.oracle.get((k, obs.index)) if self.oracle is not None else None
+            if face is not None:
+                self._landmark_of_face[face] = j
+                self._set_face(j, face, 0.0)
+        else:
+            self.graph.add(self.build.observation(k, self.landmarks[j].anchor, j, obs.plane_C, obs.cov))
+        lm = self.landmarks[j]
+        lm.add_observation(k, obs.index, transform_points(inverse(lm.T_S_A) @ T_S_C, obs.points_C), obs.area,
+                           self.cfg.slam_association.extent_max_points)
+        self.landmarks.update_sphere(j)
+        return j
+
+    def _keys_of(self, js) -> list[int]:
+        return [L(j) for j in js] + [X(self.landmarks[j].anchor) for j in js]
+
+    def _covariance_due(self, j: int) -> bool:
+        """Landmark marginals settle after a few observations: re-read them early, then rarely."""
+        n = len(self.landmarks[j].observations)
+        return n <= self.cfg.isam2.covariance_early or n % self.cfg.isam2.covariance_every == 0
+
+    def _refresh(self, values: gtsam.Values, estimates, covariances) -> None:
+        """Copy landmark estimates (and the marginals of `covariances`) from iSAM2 to the cache."""
+        cov = set(covariances)
+        for j in sorted(set(estimates) | cov):
+            lm = self.landmarks[j]
+            self.landmarks.set_estimate(j, values.atOrientedPlane3(L(j)).planeCoefficients(),
+                                        values.atPose3(X(lm.anchor)).matrix(),
+                                        self.graph.marginal(L(j)) if j in cov else None)
+
+    def _set_face(self, j: int, face: str, score: float) -> None:
+        lm = self.landmarks[j]
+        lm.face, lm.score = face, score
+        self.graph.add_bim(j, lm.anchor, self.faces.planes[self.faces.row[face]])
+        self.listener.on_association(j, face, score)
+
+    def _revise(self, observed: list[int], T_S_B: gtsam.Pose3) -> bool:
+        if self.oracle is not None:
+            return False
+        changed = False
+        for j in sorted(set(observed)):
+            lm = self.landmarks[j]
+            if lm.face is None:
+                continue
+            plane_B = predict_local_plane(T_S_B, gtsam.Pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A))
+            reason = revision_reason(plane_B, self.faces.planes[self.faces.row[lm.face]], self.cfg.bim_association)
+            if reason is not None:
+                self._unmatch(lm, reason)
+                changed = True
+        return changed
+
+    def _unmatch(self, lm: Landmark, reason: str) -> None:
+        self.graph.remove_bim(lm.id)
+        unmatch(lm, reason, self.listener)
+
+    def _associate(self, observed: list[int], T_S_B: gtsam.Pose3) -> bool:
+        if self.oracle is not None:
+            return False
+        todo = [j for j in sorted(set(observed)) if self.landmarks[j].face is None
+                and self.bim.eligible(self.landmarks[j].area, len(self.landmarks[j].observations),
+                                      self.landmarks[j].bim_attempt)]
+        if not todo:
+            return False
+        T_B_S = T_S_B.inverse().matrix()
+        candidates = []
+        for j in todo:
+            lm = self.landmarks[j]
+            lm.bim_attempt = len(lm.observations)
+            joint = self.graph.joint([E, X(lm.anchor), L(j)])
+            plane_B, cov_B = plane_in_B(T_S_B, gtsam.Pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A), joint)
+            candidates.append(PlaneInB(j, plane_B, cov_B, lm.extent_in(T_B_S), lm.area))
+        matches = self.bim.match(candidates)
+        for m in matches:
+            self._set_face(m.landmark, m.face, m.score)
+        return bool(matches)
+
+
+def unmatch(lm: Landmark, reason: str, listener: Listener) -> None:
+    lm.rejected.add(lm.face)
+    listener.on_association_removed(lm.id, lm.face, reason)
+    lm.face, lm.score = None, float("nan")
+
+
+def run_online(keyframes, plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,
+               listener: Listener | None = None, oracle: Oracle | None = None) -> Results:
+    """The online estimator over a whole sequence, collected: the causal estimates as emitted."""
+    backend = Backend(plane_map, cfg, initial, listener, oracle)
+    start = time.perf_counter()
+    emitted = [backend.process(kf) for kf in keyframes]
+    last = emitted[-1]
+    backend.resolve_faces(last.T_B_S)
+    latency = np.array([r.latency_s for r in emitted])
+    timings = {"total_s": time.perf_counter() - start, "latency_median_s": float(np.median(latency)),
+               "latency_p95_s": float(np.percentile(latency, 95)), "latency_max_s": float(latency.max()),
+               "isam2_median_s": float(np.median([r.isam2_s for r in emitted]))}
+    return Results(mode="online", indices=[r.index for r in emitted], stamps=[r.stamp for r in emitted],
+                   T_S_C=[r.T_S_C for r in emitted], T_B_C=[r.T_B_C for r in emitted], T_B_S=last.T_B_S,
+                   cov_T_B_S=last.cov_T_B_S, unobservable=backend.unobservable(), landmarks=backend.landmarks.items,
+                   timings=timings)

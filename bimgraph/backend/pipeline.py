@@ -1,0 +1,126 @@
+"""A run from files to files: load the sequence and the BIM model, estimate, write the outputs.
+The only part of the backend that touches the disk (with `results`)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from bimgraph.backend.alignment import Alignment, align_from_seeds
+from bimgraph.backend.offline import run_offline
+from bimgraph.backend.online import Backend
+from bimgraph.backend.records import Listener, Results
+from bimgraph.backend.results import OnlineWriter, write_results
+from bimgraph.bim.planemap import PlaneMap, load_plane_map
+from bimgraph.config import Config
+from bimgraph.errors import ConfigError, InputError
+from bimgraph.geometry import normalise_plane, plane_from_frame, pose_from_tum
+from bimgraph.sequence.format import Keyframe, SequenceMeta, iter_keyframes, load_meta, load_sequence
+
+
+def load_model(path: Path, cfg: Config) -> PlaneMap:
+    """A BIM model: an IFC file goes through the importer, a JSON file is a plane map."""
+    path = Path(path)
+    if path.suffix.lower() == ".ifc":
+        from bimgraph.bim.ifc_import import import_ifc
+
+        return import_ifc(path, cfg.bim)[0]
+    if path.suffix.lower() == ".json":
+        return load_plane_map(path)
+    raise InputError(f"{path}: not a BIM model (expected .ifc or a .json plane map)")
+
+
+def model_path(root: Path, meta: SequenceMeta, bim: Path | None) -> Path:
+    if bim is not None:
+        return Path(bim)
+    if meta.model is None:
+        raise InputError(f"{root}: sequence.json names no model; give one with --bim")
+    p = Path(meta.model)
+    return p if p.is_absolute() else Path(root) / p
+
+
+def initial_alignment(meta: SequenceMeta, cfg: Config) -> Alignment:
+    """The sequence's manual alignment; identity with the configured (wide) uncertainty if none."""
+    noise = cfg.backend.noise
+    if meta.initial_alignment is None:
+        return Alignment.from_sigmas(np.eye(4), noise.extrinsic_rot_deg, noise.extrinsic_trans_m)
+    ia = meta.initial_alignment
+    return Alignment.from_sigmas(pose_from_tum(ia.T_B_S), ia.sigma_rot_deg, ia.sigma_trans_m)
+
+
+def parse_seed(text: str) -> tuple[int, int, str]:
+    """`KEYFRAME:PLANE:FACE_ID` (a face id may itself contain colons)."""
+    parts = text.split(":", 2)
+    try:
+        return int(parts[0]), int(parts[1]), parts[2]
+    except (ValueError, IndexError):
+        raise ConfigError(f"seed {text!r}: expected KEYFRAME:PLANE:FACE_ID") from None
+
+
+def seed_alignment(keyframes: list[Keyframe], plane_map: PlaneMap, seeds: list[tuple[int, int, str]],
+                   cfg: Config, prior: Alignment) -> Alignment:
+    """Plane registration of seed pairs (keyframe, plane index, BIM face id)."""
+    by_index = {kf.index: kf for kf in keyframes}
+    planes_S, planes_B = [], []
+    for k, i, face in seeds:
+        if k not in by_index or i >= len(by_index[k].planes):
+            raise ConfigError(f"seed {k}:{i}:{face}: no plane {i} in keyframe {k}")
+        if face not in plane_map.index:
+            raise ConfigError(f"seed {k}:{i}:{face}: no face {face!r} in the plane map")
+        kf = by_index[k]
+        planes_S.append(plane_from_frame(normalise_plane(kf.planes[i].plane), kf.pose))
+        planes_B.append(plane_map.faces[plane_map.index[face]].plane)
+    return align_from_seeds(np.array(planes_S), np.array(planes_B), cfg.backend, prior)
+
+
+def oracle_of(root: Path) -> dict[tuple[int, int], str | None]:
+    """Ground-truth associations of a simulated sequence: (keyframe index, plane) -> face id."""
+    from bimgraph.sequence.groundtruth import load_groundtruth
+
+    gt = load_groundtruth(root)
+    return {(k, i): p.get("face_id") for k, planes in enumerate(gt.observations) for i, p in enumerate(planes)}
+
+
+def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = None, config: Config | None = None,
+        seeds: list[tuple[int, int, str]] = (), oracle: bool = False, listener: Listener | None = None,
+        progress: Callable[[int, int | None], None] | None = None) -> Results | None:
+    """Run the backend on a sequence folder and write the outputs to `out_dir`. Online runs
+    read and process keyframe by keyframe, writing as they go; they return None."""
+    cfg = config or Config()
+    seq_dir = Path(seq_dir)
+    if mode not in ("online", "offline"):
+        raise ConfigError(f"mode {mode!r}: expected online or offline")
+    meta = load_meta(seq_dir)
+    plane_map = load_model(model_path(seq_dir, meta, bim), cfg)
+    if not plane_map.faces:
+        raise InputError("the BIM model has no wall faces")
+    initial = initial_alignment(meta, cfg)
+    truth = oracle_of(seq_dir) if oracle else None
+    if mode == "offline" or seeds:
+        sequence = load_sequence(seq_dir)
+        if seeds:
+            initial = seed_alignment(sequence.keyframes, plane_map, list(seeds), cfg, initial)
+    if mode == "offline":
+        results = run_offline(sequence.keyframes, plane_map, cfg.backend, initial, listener, truth)
+        write_results(out_dir, results)
+        return results
+
+    keyframes = sequence.keyframes if seeds else iter_keyframes(seq_dir)
+    backend = Backend(plane_map, cfg.backend, initial, listener, truth)
+    writer = OnlineWriter(out_dir, cfg.backend.write_every)
+    start = time.perf_counter()
+    try:
+        for n, kf in enumerate(keyframes, start=1):
+            writer.keyframe(backend.process(kf), backend)
+            if progress is not None:
+                progress(n, None)
+    except BaseException:
+        writer.snapshot(backend, finished=False, timings={"total_s": time.perf_counter() - start})
+        writer.close()
+        raise
+    writer.snapshot(backend, finished=True, timings={"total_s": time.perf_counter() - start})
+    writer.close()
+    return None

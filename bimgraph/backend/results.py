@@ -1,0 +1,156 @@
+"""The files of a run (schema in docs/formats.md, "Run outputs").
+
+Online runs write as they go: each keyframe appends one complete line to the two TUM files
+and flushes; the JSON files are rewritten atomically every few keyframes and at the end, so a
+run that dies leaves every file valid and consistent up to some keyframe.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from bimgraph.backend.landmarks import Landmark
+from bimgraph.backend.records import KeyframeResult, Results
+from bimgraph.files import write_json
+from bimgraph.geometry import plane_from_frame, pose_to_tum
+from bimgraph.sequence.tum import format_tum, write_tum
+
+TRAJECTORY_BIM = "trajectory_bim.tum"
+TRAJECTORY_SLAM = "trajectory_slam.tum"
+EXTRINSIC = "extrinsic.json"
+ASSOCIATIONS = "associations.json"
+LANDMARKS = "landmarks.json"
+SUMMARY = "summary.json"
+
+
+def _pose7(T: np.ndarray) -> list[float]:
+    return [round(float(v), 9) for v in pose_to_tum(T)]
+
+
+def _plane(p: np.ndarray) -> list[float]:
+    return [round(float(v), 9) for v in p]
+
+
+def _finite(x: float):
+    return None if x is None or not math.isfinite(x) else round(float(x), 6)
+
+
+def extrinsic_record(T_B_S: np.ndarray, cov: np.ndarray, unobservable: list[dict], keyframe: int | None) -> dict:
+    return {"T_B_S": _pose7(T_B_S), "covariance": [[float(v) for v in row] for row in cov],
+            "covariance_tangent": "gtsam Pose3: rotation (rad), then translation (m), right perturbation",
+            "sigma_rot_deg": [float(np.degrees(np.sqrt(v))) for v in np.diag(cov)[:3]],
+            "sigma_trans_m": [float(np.sqrt(v)) for v in np.diag(cov)[3:]],
+            "unobservable": unobservable, "keyframe": keyframe}
+
+
+def associations_record(landmarks: list[Landmark]) -> dict:
+    """One record per (landmark, face): a landmark matched to a group of coplanar faces is
+    listed once for each face its observations lie on."""
+    records = []
+    for lm in landmarks:
+        if lm.face is None:
+            continue
+        by_face: dict[str, list] = {}
+        for obs, face in zip(lm.observations, lm.observation_faces or [lm.face] * len(lm.observations)):
+            by_face.setdefault(face, []).append(obs)
+        for face, observations in by_face.items():
+            records.append({"landmark": lm.id, "face": face, "landmark_face": lm.face, "score": _finite(lm.score),
+                            "keyframes": sorted({k for k, _ in observations}),
+                            "observations": [list(o) for o in observations]})
+    return {"associations": records}
+
+
+def landmarks_record(landmarks: list[Landmark], T_B_S: np.ndarray) -> dict:
+    out = []
+    for lm in landmarks:
+        plane_S = lm.plane_S
+        out.append({"id": lm.id, "anchor": lm.anchor, "plane_A": _plane(lm.plane_A), "plane_S": _plane(plane_S),
+                    "plane_B": _plane(plane_from_frame(plane_S, T_B_S)),
+                    "covariance_A": [[float(v) for v in row] for row in lm.cov_A],
+                    "extent_S": [[round(float(v), 4) for v in p] for p in lm.extent_in(np.eye(4))],
+                    "area": round(float(lm.area), 4), "face": lm.face, "rejected_faces": sorted(lm.rejected),
+                    "observations": len(lm.observations)})
+    return {"frame": "plane_S in S, plane_B in B with the final T_B_S, plane_A in the anchor keyframe", "landmarks": out}
+
+
+def summary_record(mode: str, timings: dict, latencies_s: list[float], n_keyframes: int, landmarks: list[Landmark],
+                   finished: bool, rounds: int = 0) -> dict:
+    summary = {"mode": mode, "finished": finished, "keyframes": n_keyframes, "landmarks": len(landmarks),
+               "matched_landmarks": sum(lm.face is not None for lm in landmarks),
+               "matched_faces": len({lm.face for lm in landmarks if lm.face is not None}),
+               "timings_s": {k: round(v, 6) for k, v in timings.items()}}
+    if latencies_s:
+        ms = np.asarray(latencies_s) * 1e3
+        summary["latency_ms"] = {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95)), "max": float(ms.max())}
+    if rounds:
+        summary["rounds"] = rounds
+    return summary
+
+
+class TumAppender:
+    """A TUM file written one complete, flushed line at a time."""
+
+    def __init__(self, path: Path):
+        self._fh = open(path, "w")
+        self._fh.write(format_tum([], []))
+        self._fh.flush()
+
+    def append(self, stamp: float, T: np.ndarray) -> None:
+        self._fh.write(format_tum([stamp], [T]).split("\n", 1)[1])
+        self._fh.flush()
+
+    def close(self) -> None:
+        self._fh.close()
+
+
+class OnlineWriter:
+    """Writes an online run's outputs incrementally (see the module docstring)."""
+
+    def __init__(self, out_dir: Path, write_every: int):
+        self.out = Path(out_dir)
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.write_every = write_every
+        self.bim = TumAppender(self.out / TRAJECTORY_BIM)
+        self.slam = TumAppender(self.out / TRAJECTORY_SLAM)
+        self.latencies: list[float] = []
+        self.last: KeyframeResult | None = None
+
+    def keyframe(self, result: KeyframeResult, backend) -> None:
+        self.bim.append(result.stamp, result.T_B_C)
+        self.slam.append(result.stamp, result.T_S_C)
+        self.latencies.append(result.latency_s)
+        self.last = result
+        if len(self.latencies) % self.write_every == 0:
+            self.snapshot(backend, finished=False)
+
+    def snapshot(self, backend, finished: bool, timings: dict | None = None) -> None:
+        if self.last is None:
+            return
+        landmarks = backend.landmarks.items
+        backend.resolve_faces(self.last.T_B_S)
+        write_json(self.out / EXTRINSIC, extrinsic_record(self.last.T_B_S, self.last.cov_T_B_S, backend.unobservable(),
+                                                          self.last.index))
+        write_json(self.out / ASSOCIATIONS, associations_record(landmarks))
+        write_json(self.out / LANDMARKS, landmarks_record(landmarks, self.last.T_B_S))
+        write_json(self.out / SUMMARY, summary_record("online", timings or {}, self.latencies, len(self.latencies),
+                                                      landmarks, finished))
+
+    def close(self) -> None:
+        self.bim.close()
+        self.slam.close()
+
+
+def write_results(out_dir: Path, results: Results) -> None:
+    """All outputs of a finished run at once (offline runs)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    write_tum(out / TRAJECTORY_BIM, results.stamps, results.T_B_C)
+    write_tum(out / TRAJECTORY_SLAM, results.stamps, results.T_S_C)
+    write_json(out / EXTRINSIC, extrinsic_record(results.T_B_S, results.cov_T_B_S, results.unobservable, None))
+    write_json(out / ASSOCIATIONS, associations_record(results.landmarks))
+    write_json(out / LANDMARKS, landmarks_record(results.landmarks, results.T_B_S))
+    write_json(out / SUMMARY, summary_record(results.mode, results.timings, [], len(results.stamps), results.landmarks,
+                                             True, results.rounds))

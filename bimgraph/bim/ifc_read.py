@@ -1,0 +1,333 @@
+"""Read what the import needs out of an IFC model: meshes in B, openings, rooms, boundaries.
+
+Frame B is the IfcBuilding's own placement (its local coordinate system; the project's world
+frame when there is no IfcBuilding), in metres whatever the file's units. Georeferenced
+models carry their large offsets in the site or building placement, so B keeps coordinates
+small. Every matrix below is rigid; file units are scaled to metres once, at the end.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import ifcopenshell
+import ifcopenshell.geom
+import ifcopenshell.util.element
+import ifcopenshell.util.placement
+import ifcopenshell.util.shape
+import ifcopenshell.util.unit
+import numpy as np
+import shapely
+
+from bimgraph.errors import InputError
+from bimgraph.geometry import inverse
+
+_END_MARK = b"END-ISO-10303-21;"
+
+
+@dataclass
+class Mesh:
+    V: np.ndarray  # vertices in B, metres
+    T: np.ndarray  # triangles, indices into V
+    T_B_E: np.ndarray | None = None  # the element's placement, when known
+
+
+@dataclass
+class Boundary:
+    """A space boundary's surface: `points` (N x 3, in B) of its outer loop."""
+
+    space_guid: str
+    wall_guid: str
+    points: np.ndarray
+
+
+def open_model(path) -> ifcopenshell.file:
+    """Open an IFC file; a missing, non-IFC or truncated file is an InputError."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    with open(path, "rb") as stream:
+        head = stream.read(64)
+        stream.seek(0, 2)
+        stream.seek(max(0, stream.tell() - 1024))
+        tail = stream.read()
+    if not head.lstrip(b"\xef\xbb\xbf \t\r\n").startswith(b"ISO-10303-21;"):  # a BOM is allowed
+        raise InputError(f"{path}: not an IFC file (no ISO-10303-21 header)")
+    if _END_MARK not in tail:
+        raise InputError(f"{path}: truncated IFC file (no {_END_MARK.decode()} at its end)")
+    try:
+        return ifcopenshell.open(str(path))
+    except Exception as err:  # ifcopenshell raises several unrelated types on bad files
+        raise InputError(f"{path}: cannot parse IFC ({str(err).splitlines()[0] if str(err) else type(err).__name__})") from None
+
+
+class ModelReader:
+    """An open model with its unit scale and frame B; caches placements and storeys."""
+
+    def __init__(self, model: ifcopenshell.file, threads: int):
+        self.model = model
+        self.threads = threads
+        self.scale = ifcopenshell.util.unit.calculate_unit_scale(model)  # metres per file unit
+        self._placements = {}
+        buildings = model.by_type("IfcBuilding")
+        self.T_W_B = self.placement(buildings[0]) if buildings and buildings[0].ObjectPlacement else np.eye(4)
+        self.T_B_W = inverse(self.T_W_B)
+        self._storeys = {}
+        self.settings = {}
+        for subtract in (False, True):
+            self.settings[subtract] = ifcopenshell.geom.settings()
+            self.settings[subtract].set("disable-opening-subtractions", not subtract)
+
+    def to_metres(self, T_file: np.ndarray) -> np.ndarray:
+        T = np.array(T_file, dtype=float)
+        T[:3, 3] *= self.scale
+        return T
+
+    def placement(self, element) -> np.ndarray:
+        """T_W_E of an element's object placement, in metres."""
+        return self._local_placement(element.ObjectPlacement)
+
+    def _local_placement(self, placement) -> np.ndarray:
+        """Placements chain up to the building and the site: each link is computed once."""
+        key = placement.id()
+        if key not in self._placements:
+            if not placement.is_a("IfcLocalPlacement"):  # grid or linear placements
+                T = self.to_metres(ifcopenshell.util.placement.get_local_placement(placement))
+            else:
+                T = self.to_metres(ifcopenshell.util.placement.get_axis2placement(placement.RelativePlacement))
+                if placement.PlacementRelTo is not None:
+                    T = self._local_placement(placement.PlacementRelTo) @ T
+            self._placements[key] = T
+        return self._placements[key]
+
+    def meshes(self, elements, subtract_openings: bool = False) -> dict[int, Mesh]:
+        """Triangulated geometry of `elements` in B, by entity id; elements whose geometry
+        fails are absent. Wall openings are cut out of the face polygons afterwards, at a
+        fraction of the cost of `subtract_openings`."""
+        out = {}
+        if not elements:
+            return out
+        iterator = ifcopenshell.geom.iterator(self.settings[subtract_openings], self.model, self.threads or available_cores(),
+                                              include=elements)
+        if iterator.initialize():
+            while True:
+                shape = iterator.get()
+                T_B_E = self.T_B_W @ ifcopenshell.util.shape.get_shape_matrix(shape)
+                V = ifcopenshell.util.shape.get_vertices(shape.geometry)
+                T = ifcopenshell.util.shape.get_faces(shape.geometry)
+                if len(T):
+                    out[shape.id] = Mesh(V @ T_B_E[:3, :3].T + T_B_E[:3, 3], np.asarray(T, dtype=int), T_B_E)
+                if not iterator.next():
+                    break
+        return out
+
+    def storey(self, element) -> tuple[str, float]:
+        """Name and elevation in B of the storey containing `element` ("" and 0 if none)."""
+        container = ifcopenshell.util.element.get_container(element)
+        while container is not None and not container.is_a("IfcBuildingStorey"):
+            container = ifcopenshell.util.element.get_aggregate(container)
+        if container is None:
+            return "", 0.0
+        if container.id() not in self._storeys:
+            elevation = float((self.T_B_W @ self.placement(container))[2, 3])
+            self._storeys[container.id()] = (container.Name or "", elevation)
+        return self._storeys[container.id()]
+
+    def axis_directions(self, wall, T_B_E: np.ndarray) -> list[np.ndarray]:
+        """Horizontal unit directions in B of the segments of a wall's axis representation
+        ([] if it has none that is a polyline); `T_B_E` is the wall's placement."""
+        if wall.Representation is None:
+            return []
+        for representation in wall.Representation.Representations:
+            if representation.RepresentationIdentifier != "Axis" or len(representation.Items) != 1:
+                continue
+            points = _curve_points(representation.Items[0])
+            if points is None or len(points) < 2:
+                return []
+            directions = np.diff(points, axis=0) @ T_B_E[:3, :3].T
+            directions[:, 2] = 0.0
+            norms = np.linalg.norm(directions, axis=1)
+            return list(directions[norms > 1e-9] / norms[norms > 1e-9, None])
+        return []
+
+    def solid_meshes(self, elements) -> dict[int, list[Mesh]]:
+        """Closed meshes in B of `elements` by entity id: built here, exactly and cheaply, for
+        bodies that are extrusions of polygons or faceted breps (openings and rooms nearly
+        always are), by the geometry iterator for the others. Elements without geometry are absent."""
+        out, others = {}, []
+        for element in elements:
+            solids = _body_items(element)
+            prisms = [_prism(item) if item.is_a("IfcExtrudedAreaSolid") else _brep(item) for item in solids]
+            if not solids or any(p is None for p in prisms):
+                others.append(element)
+                continue
+            T_B_E = self.T_B_W @ self.placement(element)
+            out[element.id()] = [Mesh((V * self.scale) @ T_B_E[:3, :3].T + T_B_E[:3, 3], T) for V, T in prisms]
+        out.update({i: [mesh] for i, mesh in self.meshes(others).items()})
+        return out
+
+    def boundaries(self, wall_guids: set[str]) -> list[Boundary]:
+        """Surface space boundaries on the given walls, as point loops in B."""
+        out = []
+        for rel in self.model.by_type("IfcRelSpaceBoundary"):
+            wall, space = rel.RelatedBuildingElement, rel.RelatingSpace
+            geometry = rel.ConnectionGeometry
+            if wall is None or wall.GlobalId not in wall_guids or space is None or not space.is_a("IfcSpace"):
+                continue
+            if geometry is None or not geometry.is_a("IfcConnectionSurfaceGeometry"):
+                continue
+            points = _surface_points(geometry.SurfaceOnRelatingElement)
+            if points is None or len(points) < 3:
+                continue
+            T_B_S = self.T_B_W @ self.placement(space)
+            points = points * self.scale
+            out.append(Boundary(space.GlobalId, wall.GlobalId, points @ T_B_S[:3, :3].T + T_B_S[:3, 3]))
+        return out
+
+
+def available_cores() -> int:
+    """The cores this process may run on (the geometry iterator's default thread count)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def _body_items(element) -> list:
+    """The items of an element's body if all are extrusions or faceted breps, else []."""
+    representation = element.Representation
+    if representation is None:
+        return []
+    bodies = [r for r in representation.Representations if r.RepresentationIdentifier == "Body"]
+    if len(bodies) != 1:
+        return []
+    items = list(bodies[0].Items)
+    return items if all(i.is_a("IfcExtrudedAreaSolid") or i.is_a("IfcFacetedBrep") for i in items) else []
+
+
+def _profile_points(profile) -> np.ndarray | None:
+    """The outline of a rectangle or polyline profile, in its own 2-D coordinates."""
+    if profile.is_a("IfcRectangleProfileDef"):
+        x, y = profile.XDim / 2, profile.YDim / 2
+        points = np.array([[-x, -y], [x, -y], [x, y], [-x, y]], dtype=float)
+    elif profile.is_a() == "IfcArbitraryClosedProfileDef":
+        points = _curve_points(profile.OuterCurve)
+        if points is None:
+            return None
+        points = points[:, :2]
+    else:
+        return None
+    position = getattr(profile, "Position", None)
+    if position is not None:
+        x = np.asarray(position.RefDirection.DirectionRatios[:2], dtype=float) if position.RefDirection else np.array([1.0, 0.0])
+        x /= np.linalg.norm(x)
+        R = np.column_stack([x, [-x[1], x[0]]])
+        points = points @ R.T + np.asarray(position.Location.Coordinates[:2], dtype=float)
+    return points
+
+
+def _curve_points(curve) -> np.ndarray | None:
+    """The vertices of a polyline-like curve (polyline, indexed poly curve of straight
+    segments, composite of those), without the closing repeat; None for curved ones."""
+    if curve.is_a("IfcPolyline"):
+        points = np.array([p.Coordinates for p in curve.Points], dtype=float)
+    elif curve.is_a("IfcIndexedPolyCurve"):
+        if curve.Segments and any(not s.is_a("IfcLineIndex") for s in curve.Segments):
+            return None
+        points = np.array(curve.Points.CoordList, dtype=float)
+        if curve.Segments:
+            order = [i - 1 for s in curve.Segments for i in s.wrappedValue]
+            points = points[order]
+    elif curve.is_a("IfcCompositeCurve"):
+        parts = []
+        for segment in curve.Segments:
+            part = _curve_points(segment.ParentCurve)
+            if part is None:
+                return None
+            parts.append(part if segment.SameSense else part[::-1])
+        points = np.concatenate(parts)
+    else:
+        return None
+    if points.shape[1] == 2:
+        points = np.column_stack([points, np.zeros(len(points))])
+    keep = np.ones(len(points), dtype=bool)
+    keep[1:] = np.linalg.norm(np.diff(points, axis=0), axis=1) > 1e-9  # repeated vertices
+    points = points[keep]
+    if len(points) > 1 and np.allclose(points[0], points[-1]):
+        points = points[:-1]
+    return points
+
+
+def _prism(solid) -> tuple[np.ndarray, np.ndarray] | None:
+    """A closed triangle mesh (vertices in the item's parent frame, file units) of an
+    extrusion of a polygon profile; None for other profiles."""
+    profile = _profile_points(solid.SweptArea)
+    if profile is None or len(profile) < 3:
+        return None
+    polygon = shapely.Polygon(profile)
+    if not polygon.is_valid or polygon.area <= 0:
+        return None
+    n = len(profile)
+    direction = np.asarray(solid.ExtrudedDirection.DirectionRatios, dtype=float)
+    direction = direction / np.linalg.norm(direction) * solid.Depth
+    bottom = np.column_stack([profile, np.zeros(n)])
+    V = np.vstack([bottom, bottom + direction])
+    index = {tuple(p): i for i, p in enumerate(profile)}
+    caps = [[index[tuple(c)] for c in np.asarray(t.exterior.coords)[:3]]
+            for t in shapely.constrained_delaunay_triangles(polygon).geoms]
+    caps = np.array(caps, dtype=int)
+    i = np.arange(n)
+    j = (i + 1) % n
+    T = np.vstack([caps, caps + n, np.column_stack([i, j, j + n]), np.column_stack([i, j + n, i + n])])
+    if solid.Position is not None:
+        M = ifcopenshell.util.placement.get_axis2placement(solid.Position)
+        V = V @ M[:3, :3].T + M[:3, 3]
+    return V, T
+
+
+def _brep(brep) -> tuple[np.ndarray, np.ndarray] | None:
+    """A closed triangle mesh (file units, the item's frame) of a faceted brep whose faces
+    are polygons without holes; None otherwise."""
+    loops = []
+    for face in brep.Outer.CfsFaces:
+        if len(face.Bounds) != 1 or not face.Bounds[0].Bound.is_a("IfcPolyLoop"):
+            return None
+        loop = np.array([p.Coordinates for p in face.Bounds[0].Bound.Polygon], dtype=float)
+        loops.append(loop if face.Bounds[0].Orientation else loop[::-1])
+    # Shared corners get one index, so that the faces' common edges are cut at one point.
+    V, index = np.unique(np.concatenate(loops), axis=0, return_inverse=True)
+    index = index.reshape(-1)
+    triangles, start = [], 0
+    for loop in loops:
+        ids = index[start:start + len(loop)]
+        start += len(loop)
+        if len(loop) == 3:
+            triangles.append(ids[None, :])
+            continue
+        axes = np.linalg.svd(loop - loop.mean(axis=0))[2][:2]  # the loop's own plane
+        flat = shapely.Polygon(loop @ axes.T)
+        if not flat.is_valid or flat.area <= 0:
+            return None
+        lookup = {tuple(p): i for p, i in zip(loop @ axes.T, ids)}
+        triangles.append(np.array([[lookup[tuple(c)] for c in np.asarray(t.exterior.coords)[:3]]
+                                   for t in shapely.constrained_delaunay_triangles(flat).geoms]))
+    return V, np.concatenate(triangles)
+
+
+def _surface_points(surface) -> np.ndarray | None:
+    """The outer loop of a boundary surface in its space's coordinates (file units)."""
+    if surface.is_a("IfcCurveBoundedPlane"):
+        loop = _curve_points(surface.OuterBoundary)
+        if loop is None:
+            return None
+        M = ifcopenshell.util.placement.get_axis2placement(surface.BasisSurface.Position)
+        return loop @ M[:3, :3].T + M[:3, 3]
+    if surface.is_a("IfcSurfaceOfLinearExtrusion") and surface.SweptCurve.is_a("IfcArbitraryOpenProfileDef"):
+        line = _curve_points(surface.SweptCurve.Curve)
+        if line is None:
+            return None
+        direction = np.asarray(surface.ExtrudedDirection.DirectionRatios, dtype=float)
+        direction = direction / np.linalg.norm(direction) * surface.Depth
+        loop = np.vstack([line, line[::-1] + direction])
+        M = ifcopenshell.util.placement.get_axis2placement(surface.Position)
+        return loop @ M[:3, :3].T + M[:3, 3]
+    return None

@@ -1,0 +1,114 @@
+"""From the graph's landmarks to the site team's list: every observed face with its deviation
+and status, faces that should have been seen but never were, big planes the model lacks.
+Pure computation, no I/O.
+
+The graph associates a landmark with a face only when it fits the plan within its gates, so a
+wall built 10 cm off may stay unassociated there, and one landmark stands for a whole wall
+plane that the plan splits into faces per room; for the report, the faces left unmeasured are
+matched to landmarks by proximity (parallel, close, overlapping), and measured the same way.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import shapely
+
+from bimgraph.bim.planemap import BimFace, PlaneMap
+from bimgraph.config import DeviationConfig
+from bimgraph.deviations.estimate import (
+    DeviationReport,
+    FaceReport,
+    ObservedPlane,
+    UnplannedPlane,
+    classify,
+    face_deviation,
+)
+from bimgraph.deviations.visibility import face_shape
+from bimgraph.geometry import inverse, normal_angle_deg, plane_to_frame, point_plane_distance
+
+
+def _overlap(face: BimFace, points_B: np.ndarray, cfg: DeviationConfig) -> bool:
+    """The landmark's extent covers at least `match_min_overlap_m2` of the face; with fewer
+    than three extent points, its centre lies within `match_margin_m` of the face."""
+    shape, origin, basis = face_shape(face)
+    xy = (points_B - origin) @ basis
+    if len(xy) >= 3:
+        hull = shapely.MultiPoint(xy).convex_hull
+        return hull.intersection(shape).area >= cfg.match_min_overlap_m2
+    return len(xy) > 0 and shape.distance(shapely.Point(xy.mean(axis=0))) <= cfg.match_margin_m
+
+
+def proximity_matches(faces: Sequence[BimFace], planes: Sequence[ObservedPlane], T_S_B: np.ndarray,
+                      cfg: DeviationConfig) -> dict[str, ObservedPlane]:
+    """For each face, the closest plane that is tilted less than `match_max_tilt_deg` from it,
+    passes within `match_max_offset_m` of its centre and overlaps it (`_overlap`). A plane may
+    serve several faces: one wall plane spans the coplanar faces of neighbouring rooms."""
+    T_B_S = inverse(T_S_B)
+    best: dict[str, tuple[float, ObservedPlane]] = {}
+    for plane in planes:
+        extent_B = plane.extent_in(T_B_S)
+        if len(extent_B) == 0:
+            continue
+        plane_B = plane_to_frame(plane.plane_S(), T_S_B)
+        for face in faces:
+            if normal_angle_deg(plane_B[:3], np.asarray(face.normal)) > cfg.match_max_tilt_deg:
+                continue
+            dist = abs(float(point_plane_distance(np.asarray(face.centre), plane_B)))
+            if dist > cfg.match_max_offset_m or (face.id in best and best[face.id][0] <= dist):
+                continue
+            if _overlap(face, extent_B, cfg):
+                best[face.id] = (dist, plane)
+    return {face_id: plane for face_id, (_, plane) in best.items()}
+
+
+def _is_vertical(plane_B: np.ndarray, cfg: DeviationConfig) -> bool:
+    return abs(90.0 - normal_angle_deg(plane_B[:3], np.array([0.0, 0.0, 1.0]))) <= cfg.vertical_tolerance_deg
+
+
+def assess(plane_map: PlaneMap, planes: Sequence[ObservedPlane], T_S_B: np.ndarray, cfg: DeviationConfig,
+           expected_views: Mapping[str, int] | None = None) -> DeviationReport:
+    """The deviation report. `planes` are all the graph's landmarks; `expected_views` counts,
+    per face id, the keyframes at which the face should have been in view (see
+    `visibility.expected_view_counts`); without it no face is listed as possibly not built."""
+    report = DeviationReport(cfg.tolerance_m, cfg.tilt_tolerance_deg, cfg.k_sigma)
+    faces = {f.id: f for f in plane_map.faces}
+
+    measured: dict[str, tuple[FaceReport, float]] = {}
+
+    def measure(face: BimFace, plane: ObservedPlane, how: str):
+        dev = face_deviation(face, plane, T_S_B)
+        entry = FaceReport(face.id, face.wall_guid, face.wall_name, face.storey, classify(dev, plane.n_keyframes, cfg),
+                           plane.n_keyframes, dev, plane.landmark, how, (expected_views or {}).get(face.id, 0))
+        # Two landmarks on one face (seen on two separate visits): keep the better measured one.
+        if face.id not in measured or dev.offset_sigma_m < measured[face.id][1]:
+            measured[face.id] = (entry, dev.offset_sigma_m)
+
+    for plane in planes:
+        if plane.face_id is not None and plane.face_id in faces:
+            measure(faces[plane.face_id], plane, "graph")
+    free_faces = [f for f in plane_map.faces if f.id not in measured]
+    matched = proximity_matches(free_faces, planes, T_S_B, cfg)
+    for face_id, plane in matched.items():
+        measure(faces[face_id], plane, "proximity")
+    report.faces = [measured[f.id][0] for f in plane_map.faces if f.id in measured]
+
+    for face in plane_map.faces:
+        seen_from = (expected_views or {}).get(face.id, 0)
+        if face.id not in measured and seen_from >= cfg.min_expected_keyframes:
+            report.faces.append(FaceReport(face.id, face.wall_guid, face.wall_name, face.storey, "possibly_not_built",
+                                           expected_keyframes=seen_from))
+
+    used = {p.landmark for p in matched.values()}
+    T_B_S = inverse(T_S_B)
+    for plane in planes:
+        if plane.face_id in faces or plane.landmark in used or plane.area_m2 < cfg.unplanned_min_area_m2:
+            continue
+        plane_B = plane_to_frame(plane.plane_S(), T_S_B)
+        if cfg.unplanned_vertical_only and not _is_vertical(plane_B, cfg):
+            continue
+        extent_B = plane.extent_in(T_B_S)
+        report.unplanned.append(UnplannedPlane(plane.landmark, plane_B, extent_B.mean(axis=0) if len(extent_B) else None,
+                                               plane.area_m2, plane.n_keyframes))
+    return report

@@ -1,0 +1,68 @@
+"""The BIM Collaboration Format file: one topic per deviating wall face, naming the wall's IFC
+GlobalId and with a viewpoint from inside the room looking at the face, so that BIM tools
+(BIMcollab, Solibri, BlenderBIM, Revit plug-ins) open the issue on the right wall."""
+
+from __future__ import annotations
+
+import uuid
+from pathlib import Path
+
+import numpy as np
+from bcf.geometry import camera_vectors_from_target_position
+from bcf.v3 import model as mdl
+from bcf.v3.bcfxml import BcfXml
+from bcf.v3.visinfo import VisualizationInfoHandler, build_camera_from_vectors, build_components
+
+from bimgraph.bim.planemap import PlaneMap
+from bimgraph.config import DeviationConfig
+from bimgraph.deviations.report import DeviationsFile
+from bimgraph.errors import InputError
+
+BCF_FILE = "deviations.bcf"
+
+
+def _describe(record, cfg: DeviationConfig) -> str:
+    direction = "into the room" if record.offset_m >= 0 else "out of the room"
+    return (f"Wall face {record.face_id} of {record.wall_name or record.wall_guid} ({record.storey}) is built "
+            f"{abs(record.offset_m) * 100:.1f} +/- {record.offset_sigma_m * 100:.1f} cm {direction} from plan "
+            f"and tilted {record.tilt_deg:.2f} +/- {record.tilt_sigma_deg:.2f} deg; tolerance "
+            f"+/-{cfg.tolerance_m * 100:.1f} cm and {cfg.tilt_tolerance_deg:.2f} deg. "
+            f"Seen in {record.n_keyframes} keyframes.")
+
+
+def write_bcf(deviations: DeviationsFile, plane_map: PlaneMap, path: Path, cfg: DeviationConfig,
+              project_name: str = "bimgraph as-built deviations") -> int:
+    """Write the BCF 3.0 file; returns the number of topics (deviating faces)."""
+    faces = plane_map.index
+    bcf = BcfXml.create_new(project_name)
+    count = 0
+    for record in deviations.faces:
+        if record.status != "deviating":
+            continue
+        face = plane_map.faces[faces[record.face_id]]
+        topic = bcf.add_topic(f"As-built deviation: {record.wall_name or record.face_id}", _describe(record, cfg),
+                              cfg.bcf_author, topic_type="Issue", topic_status="Open")
+        # Look at the face's centre from inside its room, slightly from above.
+        offset = cfg.bcf_view_distance_m * np.asarray(face.normal) + np.array([0.0, 0.0, 0.5])
+        camera = build_camera_from_vectors(*camera_vectors_from_target_position(np.asarray(face.centre), offset))
+        info = mdl.VisualizationInfo(guid=str(uuid.uuid4()), components=build_components(face.wall_guid),
+                                     perspective_camera=camera)
+        topic.add_visinfo_handler(VisualizationInfoHandler(info))
+        count += 1
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    bcf.save(path)
+    return count
+
+
+def read_bcf_topics(path: Path) -> list[tuple[str, list[str]]]:
+    """(title, selected IFC GlobalIds of its viewpoints) per topic of a BCF file."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    with BcfXml.load(path) as bcf:
+        out = []
+        for topic in bcf.topics.values():
+            guids = [g for vp in topic.viewpoints.values() for g in (vp.get_selected_guids() or [])]
+            out.append((topic.topic.title, guids))
+        return out

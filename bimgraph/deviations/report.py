@@ -1,0 +1,138 @@
+"""deviations.json and deviations.csv: the deviation report on disk (schema in docs/formats.md,
+"Deviations"). The JSON is the reference and is validated on load; the CSV holds the same rows
+for spreadsheets, one per face and one per unplanned plane."""
+
+from __future__ import annotations
+
+import csv
+import io
+from pathlib import Path
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from bimgraph.deviations.estimate import DeviationReport
+from bimgraph.errors import FormatError, InputError
+from bimgraph.files import read_json, write_atomic, write_json
+from bimgraph.validation import parse_model
+
+FORMAT = "bimgraph.deviations"
+VERSION = 1
+JSON_FILE = "deviations.json"
+CSV_FILE = "deviations.csv"
+
+Vec3 = tuple[float, float, float]
+FaceStatus = Literal["within_tolerance", "deviating", "not_enough_evidence", "possibly_not_built"]
+
+
+class FaceRecord(BaseModel):
+    """One BIM face: measured (offset and tilt with one-sigma) or possibly not built."""
+
+    model_config = ConfigDict(extra="forbid")
+    face_id: str
+    wall_guid: str
+    wall_name: str = ""
+    storey: str = ""
+    status: FaceStatus
+    offset_m: float | None = None
+    offset_sigma_m: float | None = Field(default=None, ge=0)
+    tilt_deg: float | None = Field(default=None, ge=0)
+    tilt_sigma_deg: float | None = Field(default=None, ge=0)
+    n_keyframes: int = Field(default=0, ge=0)
+    expected_keyframes: int = Field(default=0, ge=0)
+    landmark: int | None = None
+    matched_by: Literal["graph", "proximity", ""] = ""
+
+
+class UnplannedRecord(BaseModel):
+    """A large observed plane that matches no face: `normal . x + offset = 0` in B."""
+
+    model_config = ConfigDict(extra="forbid")
+    landmark: int
+    normal: Vec3
+    offset: float
+    centre: Vec3 | None = None
+    area_m2: float = Field(ge=0)
+    n_keyframes: int = Field(ge=0)
+
+
+class DeviationsFile(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    format: Literal["bimgraph.deviations"] = FORMAT
+    version: Literal[1] = VERSION
+    tolerance_m: float = Field(gt=0)
+    tilt_tolerance_deg: float = Field(gt=0)
+    k_sigma: float = Field(ge=0)
+    faces: list[FaceRecord]
+    unplanned: list[UnplannedRecord]
+
+    def counts(self) -> dict[str, int]:
+        out: dict[str, int] = {}
+        for f in self.faces:
+            out[f.status] = out.get(f.status, 0) + 1
+        out["unplanned"] = len(self.unplanned)
+        return out
+
+
+def to_file(report: DeviationReport) -> DeviationsFile:
+    faces = []
+    for f in report.faces:
+        dev = f.deviation
+        faces.append(FaceRecord(
+            face_id=f.face_id, wall_guid=f.wall_guid, wall_name=f.wall_name, storey=f.storey, status=f.status,
+            offset_m=dev.offset_m if dev else None, offset_sigma_m=dev.offset_sigma_m if dev else None,
+            tilt_deg=dev.tilt_deg if dev else None, tilt_sigma_deg=dev.tilt_sigma_deg if dev else None,
+            n_keyframes=f.n_keyframes, expected_keyframes=f.expected_keyframes, landmark=f.landmark,
+            matched_by=f.matched_by,
+        ))
+    unplanned = [
+        UnplannedRecord(landmark=u.landmark, normal=tuple(map(float, u.plane_B[:3])), offset=float(u.plane_B[3]),
+                        centre=None if u.centre_B is None else tuple(map(float, u.centre_B)),
+                        area_m2=u.area_m2, n_keyframes=u.n_keyframes)
+        for u in report.unplanned
+    ]
+    return DeviationsFile(tolerance_m=report.tolerance_m, tilt_tolerance_deg=report.tilt_tolerance_deg,
+                          k_sigma=report.k_sigma, faces=faces, unplanned=unplanned)
+
+
+CSV_COLUMNS = ["status", "face_id", "wall_guid", "wall_name", "storey", "offset_m", "offset_sigma_m", "tilt_deg",
+               "tilt_sigma_deg", "n_keyframes", "expected_keyframes", "landmark", "matched_by",
+               "area_m2", "centre_x", "centre_y", "centre_z"]
+
+
+def to_csv(data: DeviationsFile) -> str:
+    out = io.StringIO()
+    writer = csv.DictWriter(out, CSV_COLUMNS, lineterminator="\n")
+    writer.writeheader()
+    for f in data.faces:
+        writer.writerow({k: ("" if v is None else v) for k, v in f.model_dump().items()})
+    for u in data.unplanned:
+        centre = u.centre or ("", "", "")
+        writer.writerow({"status": "unplanned", "landmark": u.landmark, "n_keyframes": u.n_keyframes,
+                         "area_m2": u.area_m2, "centre_x": centre[0], "centre_y": centre[1], "centre_z": centre[2]})
+    return out.getvalue()
+
+
+def write_deviations(report: DeviationReport, out_dir: Path) -> DeviationsFile:
+    """Write deviations.json and deviations.csv into `out_dir` (atomically, each)."""
+    data = to_file(report)
+    write_json(Path(out_dir) / JSON_FILE, data.model_dump(mode="json"))
+    write_atomic(Path(out_dir) / CSV_FILE, to_csv(data))
+    return data
+
+
+def load_deviations(path: Path) -> DeviationsFile:
+    path = Path(path)
+    data = read_json(path)
+    if isinstance(data, dict) and data.get("format") not in (None, FORMAT):
+        raise FormatError(f"{path}: format is {data.get('format')!r}, expected {FORMAT!r}")
+    return parse_model(DeviationsFile, data, str(path))
+
+
+def read_csv_rows(path: Path) -> list[dict[str, str]]:
+    """The CSV's rows as strings, for checks and spreadsheets' round trips."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    with path.open(newline="") as fh:
+        return list(csv.DictReader(fh))

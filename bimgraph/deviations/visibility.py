@@ -1,0 +1,104 @@
+"""Which BIM faces the camera should have seen: the evidence for "possibly not built".
+
+Each face is sampled on a grid; a sample is in view at a keyframe if it lies in the camera's
+image and range, faces the camera not too obliquely, and the ray from the camera reaches it
+before any other face of the model (open3d's RaycastingScene over the planned faces, so a
+wall that is missing still hides what is behind it: the test errs toward "not expected").
+Pure computation, no I/O.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+import open3d as o3d
+import shapely
+
+from bimgraph.bim.planemap import BimFace, PlaneMap
+from bimgraph.config import DeviationConfig
+from bimgraph.viewer.meshes import face_mesh
+
+# Samples sit this far in front of their face, so that the ray to one never stops on the face
+# it belongs to.
+_LIFT_M = 0.02
+
+
+def face_shape(face: BimFace) -> tuple[shapely.Polygon, np.ndarray, np.ndarray]:
+    """The face's outline minus its holes in its plane's 2-D frame, with the frame's origin
+    (the plane's foot point) and 3 x 2 basis (gtsam's Unit3 basis): p = origin + basis @ xy."""
+    origin = -face.offset * np.asarray(face.normal, dtype=float)
+    basis = gtsam.Unit3(np.asarray(face.normal, dtype=float)).basis()
+    ring = (np.asarray(face.polygon) - origin) @ basis
+    holes = [(np.asarray(h) - origin) @ basis for h in face.holes]
+    return shapely.Polygon(ring, holes).buffer(0), origin, basis
+
+
+@dataclass(frozen=True)
+class FaceSamples:
+    points_B: np.ndarray  # N x 3
+    face: np.ndarray  # N, index into the plane map's faces
+    area_m2: np.ndarray  # N, the area each sample stands for
+
+
+def sample_faces(faces: Sequence[BimFace], grid_m: float) -> FaceSamples:
+    """Grid points inside each face (its centre alone for faces smaller than a cell)."""
+    points, index, area = [], [], []
+    for i, face in enumerate(faces):
+        shape, origin, basis = face_shape(face)
+        x0, y0, x1, y1 = shape.bounds
+        gx, gy = np.meshgrid(np.arange(x0 + grid_m / 2, x1, grid_m), np.arange(y0 + grid_m / 2, y1, grid_m))
+        xy = np.stack([gx.ravel(), gy.ravel()], axis=1)
+        xy = xy[shapely.contains_xy(shape, xy[:, 0], xy[:, 1])]
+        cell = grid_m**2
+        if len(xy) == 0:
+            xy, cell = (np.array([[shape.centroid.x, shape.centroid.y]]), shape.area) if not shape.is_empty else (xy, 0.0)
+        points.append(origin + xy @ basis.T + _LIFT_M * np.asarray(face.normal))
+        index.append(np.full(len(xy), i))
+        area.append(np.full(len(xy), cell))
+    return FaceSamples(np.concatenate(points), np.concatenate(index), np.concatenate(area))
+
+
+def _scene(faces: Sequence[BimFace]) -> o3d.t.geometry.RaycastingScene:
+    scene = o3d.t.geometry.RaycastingScene()
+    for face in faces:
+        V, T = face_mesh(face.polygon, face.holes, face.plane)
+        if len(T):
+            scene.add_triangles(o3d.core.Tensor(V.astype(np.float32)), o3d.core.Tensor(T.astype(np.uint32)))
+    return scene
+
+
+def expected_view_counts(plane_map: PlaneMap, T_B_C: np.ndarray, K: np.ndarray, width: int, height: int,
+                         cfg: DeviationConfig, progress: Callable[[int], None] | None = None) -> dict[str, int]:
+    """For every face, the number of keyframes (poses `T_B_C`, K x 4 x 4, OpenCV camera axes)
+    at which at least `cfg.visibility_min_area_m2` of it was in view and not hidden."""
+    faces = plane_map.faces
+    samples = sample_faces(faces, cfg.visibility_grid_m)
+    normals = np.asarray([f.normal for f in faces])[samples.face]
+    scene = _scene(faces)
+    cos_max = np.cos(np.radians(cfg.visibility_max_obliquity_deg))
+    counts = np.zeros(len(faces), dtype=int)
+    for k, T in enumerate(np.asarray(T_B_C).reshape(-1, 4, 4)):
+        c = T[:3, 3]
+        to_cam = c - samples.points_B
+        dist = np.linalg.norm(to_cam, axis=1)
+        p_C = -to_cam @ T[:3, :3]
+        z = p_C[:, 2]
+        ok = (dist >= cfg.visibility_min_range_m) & (dist <= cfg.visibility_max_range_m) & (z > 1e-6)
+        ok &= np.einsum("ij,ij->i", normals, to_cam) >= cos_max * dist
+        u = K[0, 0] * p_C[:, 0] / np.where(ok, z, 1.0) + K[0, 2]
+        v = K[1, 1] * p_C[:, 1] / np.where(ok, z, 1.0) + K[1, 2]
+        ok &= (u >= 0) & (u < width) & (v >= 0) & (v < height)
+        idx = np.flatnonzero(ok)
+        if len(idx):
+            dirs = -to_cam[idx] / dist[idx, None]
+            rays = np.hstack([np.broadcast_to(c, (len(idx), 3)), dirs]).astype(np.float32)
+            t_hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+            seen = idx[t_hit >= dist[idx] - 1e-3]
+            area = np.bincount(samples.face[seen], weights=samples.area_m2[seen], minlength=len(faces))
+            counts += area >= max(cfg.visibility_min_area_m2, 1e-12)
+        if progress is not None:
+            progress(k)
+    return {f.id: int(n) for f, n in zip(faces, counts)}

@@ -1,0 +1,1 @@
+"""Planes from depth images: the real-time extractor."""

@@ -1,0 +1,105 @@
+"""The `groundtruth/` folder of a simulated sequence (schema in docs/formats.md).
+
+- `T_B_C.tum`: the true camera pose of each keyframe in B (TUM, same stamps as keyframes.jsonl).
+- `T_B_S.json`: the true extrinsic, the simulated manual alignment and its error, the
+  front-end's drift.
+- `observations.jsonl`: per keyframe, per detected plane (aligned with its `planes` list), the
+  BIM face behind it (null for clutter, floors, partitions) and the as-built element.
+- `as_built.json`: per planned wall face its deviation (offset, tilt, built), and every
+  as-built element with its plane and outline.
+- `visible.jsonl`: per keyframe, the BIM faces in view within range and their pixel counts.
+- `labels/` (depth sensor only): 16-bit PNG per keyframe, element index + 1 per pixel (0: none).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bimgraph.errors import FormatError, InputError
+from bimgraph.files import read_json, write_atomic, write_json
+from bimgraph.geometry import pose_from_tum, pose_to_tum
+from bimgraph.sequence.tum import read_tum, write_tum
+
+FOLDER = "groundtruth"
+TRAJECTORY_FILE = "T_B_C.tum"
+EXTRINSIC_FILE = "T_B_S.json"
+OBSERVATIONS_FILE = "observations.jsonl"
+AS_BUILT_FILE = "as_built.json"
+VISIBLE_FILE = "visible.jsonl"
+LABELS_FOLDER = "labels"
+
+
+@dataclass
+class GroundTruth:
+    stamps: np.ndarray  # N
+    T_B_C: np.ndarray  # N x 4 x 4
+    T_B_S: np.ndarray  # 4 x 4
+    extrinsic: dict  # T_B_S.json as read
+    observations: list[list[dict]]  # per keyframe, per plane: face_id, element, ...
+    as_built: dict
+    visible: list[dict]  # per keyframe: {"index", "faces": {face_id: pixels}}
+
+    def face_of(self, keyframe: int, plane: int) -> str | None:
+        return self.observations[keyframe][plane]["face_id"]
+
+
+def rounded(x, digits: int = 9):
+    """Floats rounded for writing: files stay short, their bytes do not hang on the last ulp,
+    and -0.0 becomes 0.0. A scalar stays a scalar, anything else becomes a flat list."""
+    if np.ndim(x) == 0:
+        return round(float(x), digits) + 0.0
+    return [round(float(v), digits) + 0.0 for v in np.asarray(x).ravel()]
+
+
+def pose7(T: np.ndarray) -> list[float]:
+    return rounded(pose_to_tum(T))
+
+
+def _jsonl(records) -> str:
+    return "".join(json.dumps(r) + "\n" for r in records)
+
+
+def write_groundtruth(root: Path, gt: GroundTruth) -> None:
+    folder = Path(root) / FOLDER
+    write_tum(folder / TRAJECTORY_FILE, gt.stamps, gt.T_B_C)
+    write_json(folder / EXTRINSIC_FILE, {"T_B_S": pose7(gt.T_B_S), **gt.extrinsic})
+    write_atomic(folder / OBSERVATIONS_FILE, _jsonl({"index": k, "planes": planes} for k, planes in enumerate(gt.observations)))
+    write_json(folder / AS_BUILT_FILE, gt.as_built)
+    write_atomic(folder / VISIBLE_FILE, _jsonl(gt.visible))
+
+
+def _read_jsonl(path: Path) -> list[dict]:
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    records = []
+    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError as err:
+            raise FormatError(f"{path}: line {lineno}: invalid JSON ({err.msg})") from None
+    return records
+
+
+def load_groundtruth(root: Path) -> GroundTruth:
+    """Read `root/groundtruth/`; a FormatError names the file and what is inconsistent."""
+    folder = Path(root) / FOLDER
+    if not folder.is_dir():
+        raise InputError(f"{root}: no {FOLDER}/ folder (not a simulated sequence)")
+    stamps, T_B_C = read_tum(folder / TRAJECTORY_FILE)
+    extrinsic = read_json(folder / EXTRINSIC_FILE)
+    try:
+        T_B_S = pose_from_tum(extrinsic.pop("T_B_S"))
+    except (KeyError, ValueError, TypeError, AttributeError):
+        raise FormatError(f"{folder / EXTRINSIC_FILE}: T_B_S must be 7 numbers (tx ty tz qx qy qz qw)") from None
+    observations = [r.get("planes", []) for r in _read_jsonl(folder / OBSERVATIONS_FILE)]
+    visible = _read_jsonl(folder / VISIBLE_FILE)
+    for name, records in [(OBSERVATIONS_FILE, observations), (VISIBLE_FILE, visible)]:
+        if len(records) != len(stamps):
+            raise FormatError(f"{folder / name}: {len(records)} keyframes, {TRAJECTORY_FILE} has {len(stamps)}")
+    return GroundTruth(stamps, T_B_C, T_B_S, extrinsic, observations, read_json(folder / AS_BUILT_FILE), visible)

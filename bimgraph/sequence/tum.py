@@ -1,0 +1,52 @@
+"""TUM trajectory files: one pose a line, `stamp tx ty tz qx qy qz qw`, as evo and the TUM
+RGB-D benchmark read them. Lines starting with `#` are comments."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from bimgraph.errors import FormatError, InputError
+from bimgraph.files import write_atomic
+from bimgraph.geometry import pose_from_tum, pose_to_tum
+
+
+def format_tum(stamps, poses) -> str:
+    """The file's text; fixed precision so that the same poses always give the same bytes."""
+    lines = ["# stamp tx ty tz qx qy qz qw"]
+    for stamp, T in zip(stamps, poses):
+        values = " ".join(f"{v:.9f}" for v in pose_to_tum(np.asarray(T)))
+        lines.append(f"{float(stamp):.6f} {values}")
+    return "\n".join(lines) + "\n"
+
+
+def write_tum(path: Path, stamps, poses) -> None:
+    if len(stamps) != len(poses):
+        raise ValueError(f"{len(stamps)} stamps for {len(poses)} poses")
+    write_atomic(path, format_tum(stamps, poses))
+
+
+def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Stamps (N,) and poses (N, 4, 4); a FormatError names the bad line."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    stamps, poses = [], []
+    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        fields = line.replace(",", " ").split()
+        if len(fields) != 8:
+            raise FormatError(f"{path}: line {lineno}: expected 8 values (stamp tx ty tz qx qy qz qw), got {len(fields)}")
+        try:
+            values = [float(f) for f in fields]
+        except ValueError:
+            raise FormatError(f"{path}: line {lineno}: not a number") from None
+        q_norm = np.linalg.norm(values[4:8])
+        if not np.all(np.isfinite(values)) or abs(q_norm - 1.0) > 1e-3:
+            raise FormatError(f"{path}: line {lineno}: quaternion has norm {q_norm:.4f}, must be unit")
+        stamps.append(values[0])
+        poses.append(pose_from_tum(values[1:]))
+    return np.array(stamps), np.array(poses).reshape(-1, 4, 4)

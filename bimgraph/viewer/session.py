@@ -1,0 +1,120 @@
+"""The viewer around whole runs: set up for a sequence folder (plane map, camera, initial
+alignment, ground truth when simulated), finish with the deviation report, and replay a
+finished run's output folder (`bimgraph view`). File reading lives here, not in the viewer."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from bimgraph.bim.planemap import PlaneMap
+from bimgraph.config import Config
+from bimgraph.errors import FormatError, InputError
+from bimgraph.files import read_json
+from bimgraph.geometry import inverse
+from bimgraph.sequence.format import SequenceMeta, load_sequence
+from bimgraph.viewer.follow import mark_deviations, read_depth
+from bimgraph.viewer.rerun_viewer import RerunViewer, open_recording
+
+# Stamps are written with 6 decimals in TUM files.
+_STAMP_TOL = 1e-5
+
+
+def ground_truth(seq_dir: Path) -> tuple[dict[int, np.ndarray], np.ndarray | None]:
+    """`T_B_C` by keyframe index and `T_B_S` of a simulated sequence, or ({}, None). The
+    ground-truth trajectory has one pose per keyframe in file order; as the backend's
+    oracle does, keyframe k is the k-th line."""
+    from bimgraph.sequence.groundtruth import FOLDER, load_groundtruth
+
+    if not (Path(seq_dir) / FOLDER).is_dir():
+        return {}, None
+    gt = load_groundtruth(seq_dir)
+    return dict(enumerate(gt.T_B_C)), gt.T_B_S
+
+
+def open_viewer(seq_dir: Path, meta: SequenceMeta, plane_map: PlaneMap, T_B_S_initial: np.ndarray, cfg: Config,
+                rrd: Path | None = None, spawn: bool = False) -> RerunViewer:
+    """A viewer for a run over the sequence in `seq_dir`, saving to `rrd` and/or streaming to
+    a spawned Rerun viewer."""
+    T_B_C_truth, T_B_S_truth = ground_truth(seq_dir)
+    return RerunViewer(open_recording(rrd, spawn, meta.camera), plane_map, T_B_S_initial, camera=meta.camera,
+                       T_B_C_truth=T_B_C_truth, T_B_S_truth=T_B_S_truth, config=cfg.viewer)
+
+
+def finish(viewer: RerunViewer, out_dir: Path) -> None:
+    """Colour the deviating faces if the run wrote a deviation report, and close."""
+    from bimgraph.deviations.report import JSON_FILE, load_deviations
+
+    path = Path(out_dir) / JSON_FILE
+    if path.is_file():
+        mark_deviations(viewer, {f.face_id: f.status for f in load_deviations(path).faces})
+    viewer.close()
+
+
+def face_by_observation(out_dir: Path) -> dict[tuple[int, int], str]:
+    """(keyframe index, plane index) -> face id, from associations.json (final associations)."""
+    from bimgraph.backend.results import ASSOCIATIONS
+
+    path = Path(out_dir) / ASSOCIATIONS
+    faces = {}
+    try:
+        for a in read_json(path)["associations"]:
+            for k, i in a["observations"]:
+                faces[(int(k), int(i))] = str(a["face"])
+    except (KeyError, TypeError, ValueError):
+        raise FormatError(f"{path}: expected {{'associations': [{{'face', 'observations': [[k, i], ...]}}]}}") from None
+    return faces
+
+
+def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | None = None,
+                 rrd: Path | None = None, spawn: bool = False) -> int:
+    """Log a finished run's output folder (trajectory_bim.tum, trajectory_slam.tum,
+    associations.json, deviations.json if any) against its sequence; returns the number
+    of keyframes logged. The extrinsic at each keyframe is recovered as
+    `T_B_C @ inverse(T_S_C)` from the two trajectories; associations are the final ones."""
+    from bimgraph.backend.pipeline import initial_alignment, load_model, model_path
+    from bimgraph.backend.results import SUMMARY, TRAJECTORY_BIM, TRAJECTORY_SLAM
+    from bimgraph.sequence.tum import read_tum
+
+    out_dir = Path(out_dir)
+    if not out_dir.is_dir():
+        raise InputError(f"{out_dir}: no such output folder")
+    if seq_dir is None:
+        named = read_json(out_dir / SUMMARY).get("sequence") if (out_dir / SUMMARY).is_file() else None
+        if named is None:
+            raise InputError(f"{out_dir}: the run does not name its sequence; give it with --sequence SEQDIR")
+        seq_dir = Path(named)
+    seq = load_sequence(seq_dir)
+    plane_map = load_model(model_path(seq.root, seq.meta, bim), cfg)
+    stamps, T_B_C = read_tum(out_dir / TRAJECTORY_BIM)
+    stamps_slam, T_S_C = read_tum(out_dir / TRAJECTORY_SLAM)
+    if len(stamps_slam) != len(stamps):
+        raise FormatError(f"{out_dir}: {TRAJECTORY_BIM} has {len(stamps)} poses, {TRAJECTORY_SLAM} {len(stamps_slam)}")
+    keyframes = seq.keyframes[:len(stamps)]  # an interrupted online run covers a prefix
+    if len(stamps) > len(seq.keyframes) or np.abs(np.array([kf.stamp for kf in keyframes]) - stamps).max() > _STAMP_TOL:
+        raise InputError(f"{out_dir}: its trajectory's stamps are not those of {seq.root}'s keyframes")
+    faces = face_by_observation(out_dir)
+
+    viewer = open_viewer(seq.root, seq.meta, plane_map, initial_alignment(seq.meta, cfg).T_B_S, cfg, rrd, spawn)
+    for kf, T_B_C_k, T_S_C_k in zip(keyframes, T_B_C, T_S_C):
+        depth = read_depth(seq.root / kf.depth) if kf.depth is not None and cfg.viewer.depth_images else None
+        viewer.keyframe(kf.index, kf.stamp, T_S_C=kf.pose, T_B_C=T_B_C_k, T_B_S=T_B_C_k @ inverse(T_S_C_k),
+                        planes=kf.planes, plane_faces=[faces.get((kf.index, i)) for i in range(len(kf.planes))],
+                        depth=depth)
+    finish(viewer, out_dir)
+    return len(keyframes)
+
+
+def follow_run(seq_dir: Path, bim: Path | None, cfg: Config, rrd: Path | None = None, spawn: bool = False):
+    """(viewer, listener) for `bimgraph run --rrd/--spawn`: pass the listener to the
+    pipeline, and `finish(viewer, out_dir)` after it. The model is loaded here a second
+    time, as the pipeline does not hand out its own."""
+    from bimgraph.backend.pipeline import initial_alignment, load_model, model_path
+    from bimgraph.sequence.format import load_meta
+    from bimgraph.viewer.follow import RerunListener
+
+    meta = load_meta(seq_dir)
+    plane_map = load_model(model_path(seq_dir, meta, bim), cfg)
+    viewer = open_viewer(seq_dir, meta, plane_map, initial_alignment(meta, cfg).T_B_S, cfg, rrd, spawn)
+    return viewer, RerunListener(viewer, seq_dir)

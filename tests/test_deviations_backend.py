@@ -1,0 +1,72 @@
+"""The deviation step on the real backend: the online iSAM2 graph of the backend's synthetic
+rooms, with one face of the plan moved, read through `observed_planes_isam2` and written by
+`write_deviation_outputs`."""
+
+import numpy as np
+import pytest
+
+from bimgraph.backend.online import Backend
+from bimgraph.backend.synthetic import make_scene
+from bimgraph.bim.planemap import PlaneMap
+from bimgraph.config import BackendConfig, DeviationConfig
+from bimgraph.deviations.bcf import BCF_FILE, read_bcf_topics
+from bimgraph.deviations.graph import observed_planes_isam2
+from bimgraph.deviations.outputs import write_deviation_outputs
+from bimgraph.deviations.report import CSV_FILE, JSON_FILE, load_deviations, read_csv_rows
+from bimgraph.sequence.format import Camera
+
+MOVED = {"r00E": 0.08}  # the wall was built 8 cm into the room
+
+
+def moved_plan(plane_map: PlaneMap) -> PlaneMap:
+    """The plan, with the faces in MOVED drawn where they were not built: the world (as
+    observed) lies MOVED[face] along the normal from it."""
+    faces = []
+    for f in plane_map.faces:
+        shift = -MOVED.get(f.id, 0.0) * np.asarray(f.normal)
+        faces.append(f.model_copy(update={"offset": f.offset - float(shift @ f.normal),
+                                          "polygon": [tuple(np.asarray(p) + shift) for p in f.polygon],
+                                          "centre": tuple(np.asarray(f.centre) + shift)}))
+    return PlaneMap(faces=faces)
+
+
+@pytest.fixture(scope="module")
+def run():
+    scene = make_scene(160, rooms=(2, 1), seed=0, drift_rot_deg=0.01, drift_trans_m=0.001)
+    plan = moved_plan(scene.plane_map)
+    backend = Backend(plan, BackendConfig(), scene.initial)
+    results = [backend.process(kf) for kf in scene.keyframes]
+    return plan, backend, results
+
+
+def test_every_landmark_is_read_from_the_graph(run):
+    plan, backend, _ = run
+    planes = observed_planes_isam2(backend.graph, backend.landmarks.items)
+    assert len(planes) == len(backend.landmarks.items)
+    with_factor = {p.landmark for p in planes if p.bim_factor is not None}
+    assert with_factor == set(backend.graph.bim_index)
+    for p in planes:
+        assert p.cov.shape == (15, 15)
+        assert np.linalg.eigvalsh(p.cov).min() > -1e-12
+        if p.bim_factor is not None:
+            A, e_w = p.bim_factor
+            assert A.shape == (3, 15) and e_w.shape == (3,)
+
+
+def test_outputs_are_written_and_consistent_with_the_truth(run, tmp_path):
+    plan, backend, results = run
+    planes = observed_planes_isam2(backend.graph, backend.landmarks.items)
+    camera = Camera(width=640, height=480, fx=525.0, fy=525.0, cx=319.5, cy=239.5)
+    cfg = DeviationConfig()
+    data = write_deviation_outputs(tmp_path, plan, planes, results[-1].T_B_S, [r.T_B_C for r in results], camera, cfg)
+    assert load_deviations(tmp_path / JSON_FILE) == data
+    assert len(read_csv_rows(tmp_path / CSV_FILE)) == len(data.faces) + len(data.unplanned)
+    assert len(read_bcf_topics(tmp_path / BCF_FILE)) == sum(f.status == "deviating" for f in data.faces)
+
+    measured = [f for f in data.faces if f.offset_m is not None]
+    assert {f.face_id for f in measured} >= {"r00E", "r00W", "r10E", "r10W"}
+    for f in measured:
+        truth = MOVED.get(f.face_id, 0.0)
+        # The graph's sigma is honest: every face within 4 sigma of the truth.
+        assert abs(f.offset_m - truth) < 4 * f.offset_sigma_m + 0.005, f
+    assert next(f for f in measured if f.face_id == "r00E").offset_m > 0.04

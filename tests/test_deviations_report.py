@@ -1,0 +1,87 @@
+"""deviations.json / .csv round trips and the BCF file re-opened with the BCF library."""
+
+import json
+
+import pytest
+from bcf.v3.bcfxml import BcfXml
+
+from bimgraph.config import DeviationConfig
+from bimgraph.deviations.assess import assess
+from bimgraph.deviations.bcf import read_bcf_topics, write_bcf
+from bimgraph.deviations.report import CSV_FILE, JSON_FILE, load_deviations, read_csv_rows, write_deviations
+from bimgraph.errors import FormatError
+from deviation_scenes import T_S_B
+from test_deviations import room_scene
+
+CFG = DeviationConfig()
+
+
+@pytest.fixture()
+def written(tmp_path):
+    plane_map, planes = room_scene()
+    report = assess(plane_map, planes, T_S_B, CFG, expected_views={"north-face": 12})
+    data = write_deviations(report, tmp_path)
+    return plane_map, data, tmp_path
+
+
+def test_json_round_trip(written):
+    _, data, out = written
+    loaded = load_deviations(out / JSON_FILE)
+    assert loaded == data
+    assert loaded.counts() == {"deviating": 2, "within_tolerance": 1, "possibly_not_built": 1, "unplanned": 1}
+    south = next(f for f in loaded.faces if f.face_id == "south-face")
+    assert south.offset_m == pytest.approx(0.06, abs=1e-3)
+    assert south.wall_guid == "2O2Fr$t4X7Zf8NOew3FLOH"
+
+
+def test_csv_holds_the_same_rows(written):
+    _, data, out = written
+    rows = read_csv_rows(out / CSV_FILE)
+    assert len(rows) == len(data.faces) + len(data.unplanned)
+    for row, face in zip(rows, data.faces):
+        assert row["face_id"] == face.face_id and row["status"] == face.status
+        if face.offset_m is None:
+            assert row["offset_m"] == "" and row["offset_sigma_m"] == ""
+        else:
+            assert float(row["offset_m"]) == face.offset_m  # exact: floats are written in full
+            assert float(row["tilt_sigma_deg"]) == face.tilt_sigma_deg
+        assert int(row["n_keyframes"]) == face.n_keyframes
+    unplanned = rows[-1]
+    assert unplanned["status"] == "unplanned" and unplanned["face_id"] == ""
+    assert float(unplanned["area_m2"]) == data.unplanned[0].area_m2
+    assert float(unplanned["centre_x"]) == pytest.approx(3.0)
+
+
+def test_bad_json_names_the_field(tmp_path, written):
+    _, data, out = written
+    raw = json.loads((out / JSON_FILE).read_text())
+    raw["faces"][0]["status"] = "wonky"
+    (tmp_path / "bad.json").write_text(json.dumps(raw))
+    with pytest.raises(FormatError, match="faces"):
+        load_deviations(tmp_path / "bad.json")
+
+
+def test_bcf_reopens_and_names_existing_walls(written, tmp_path):
+    plane_map, data, _ = written
+    path = tmp_path / "deviations.bcf"
+    n = write_bcf(data, plane_map, path, CFG)
+    deviating = [f for f in data.faces if f.status == "deviating"]
+    assert n == len(deviating) == 2
+
+    topics = read_bcf_topics(path)
+    assert len(topics) == n
+    wall_guids = {f.wall_guid for f in plane_map.faces}
+    assert sorted(g for _, guids in topics for g in guids) == sorted(f.wall_guid for f in deviating)
+    assert all(len(guids) == 1 and guids[0] in wall_guids for _, guids in topics)
+
+    with BcfXml.load(path) as bcf:
+        for topic in bcf.topics.values():
+            assert "cm" in topic.topic.description
+            (vp,) = topic.viewpoints.values()
+            camera = vp.visualization_info.perspective_camera
+            # The camera stands in the room (in front of the face) and looks at the face.
+            face = next(f for f in plane_map.faces if f.wall_guid == vp.get_selected_guids()[0])
+            pos = camera.camera_view_point
+            direction = camera.camera_direction
+            assert face.normal[0] * pos.x + face.normal[1] * pos.y + face.normal[2] * pos.z + face.offset > 1.0
+            assert face.normal[0] * direction.x + face.normal[1] * direction.y + face.normal[2] * direction.z < -0.5

@@ -1,0 +1,98 @@
+"""`bimgraph run`: the files it writes, incrementally online, and its one-line errors."""
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from bimgraph.backend.synthetic import make_scene
+from bimgraph.bim.planemap import save_plane_map
+from bimgraph.cli import app
+from bimgraph.evaluation.metrics import ate
+from bimgraph.geometry import pose_to_tum
+from bimgraph.sequence.format import InitialAlignment, Sequence, SequenceMeta, save_sequence
+from bimgraph.sequence.tum import read_tum
+
+N = 60
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory):
+    scene = make_scene(N, rooms=(2, 1), seed=7)
+    root = tmp_path_factory.mktemp("seq")
+    meta = SequenceMeta(name="synthetic", model="planes.json", sensor="planes",
+                        initial_alignment=InitialAlignment(T_B_S=tuple(pose_to_tum(scene.initial.T_B_S))))
+    save_sequence(Sequence(root=root, meta=meta, keyframes=scene.keyframes))
+    save_plane_map(scene.plane_map, root / "planes.json")
+    return scene, root
+
+
+def run(*args):
+    return CliRunner().invoke(app, ["run", *map(str, args)])
+
+
+@pytest.mark.parametrize("mode", ["online", "offline"])
+def test_run_writes_every_output(world, tmp_path, mode):
+    scene, root = world
+    result = run(root, "-o", tmp_path, "--mode", mode)
+    assert result.exit_code == 0, result.output
+    stamps, T_B_C = read_tum(tmp_path / "trajectory_bim.tum")
+    assert len(stamps) == N
+    np.testing.assert_allclose(stamps, [kf.stamp for kf in scene.keyframes], atol=1e-6)
+    assert ate(T_B_C, scene.T_B_C) < ate([scene.initial.T_B_S @ kf.pose for kf in scene.keyframes], scene.T_B_C) / 2
+    assert len(read_tum(tmp_path / "trajectory_slam.tum")[0]) == N
+    extrinsic = json.loads((tmp_path / "extrinsic.json").read_text())
+    assert np.array(extrinsic["covariance"]).shape == (6, 6)
+    assert extrinsic["unobservable"] == [{"kind": "translation", "axis_B": [0.0, 0.0, 1.0]}]
+    associations = json.loads((tmp_path / "associations.json").read_text())["associations"]
+    faces = {f.id for f in scene.plane_map.faces}
+    assert associations and all(a["face"] in faces and a["keyframes"] for a in associations)
+    landmarks = json.loads((tmp_path / "landmarks.json").read_text())["landmarks"]
+    assert len(landmarks) >= len({a["landmark"] for a in associations})
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["finished"] and summary["mode"] == mode and summary["keyframes"] == N
+
+
+def test_crash_mid_run_leaves_valid_outputs(world, tmp_path):
+    """A malformed keyframe stops an online run with a one-line error naming the line; what was
+    written up to there stays readable."""
+    _, root = world
+    broken = tmp_path / "seq"
+    broken.mkdir()
+    (broken / "sequence.json").write_text((root / "sequence.json").read_text())
+    (broken / "planes.json").write_text((root / "planes.json").read_text())
+    lines = (root / "keyframes.jsonl").read_text().splitlines()
+    lines[40] = lines[40].replace('"T_S_C": [', '"T_S_C": [9, ')
+    (broken / "keyframes.jsonl").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    result = run(broken, "-o", out)
+    assert result.exit_code == 3
+    message = result.output.strip()
+    assert "\n" not in message and "line 41" in message and "T_S_C" in message
+    assert len(read_tum(out / "trajectory_bim.tum")[0]) == 40
+    assert len(read_tum(out / "trajectory_slam.tum")[0]) == 40
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["finished"] is False and summary["keyframes"] == 40
+    json.loads((out / "associations.json").read_text())
+    assert json.loads((out / "extrinsic.json").read_text())["keyframe"] == 39
+
+
+def test_malformed_plane_map_is_one_line(world, tmp_path):
+    _, root = world
+    bad = json.loads((root / "planes.json").read_text())
+    bad["faces"][2]["normal"] = [0.0, 2.0, 0.0]
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    result = run(root, "-o", tmp_path / "out", "--bim", tmp_path / "bad.json")
+    assert result.exit_code == 3
+    assert "faces[2]" in result.output and "normal" in result.output and result.output.strip().count("\n") == 0
+
+
+def test_seed_alignment_and_bad_seed(world, tmp_path):
+    scene, root = world
+    # keyframe 0 sees some walls: seed every one of its wall planes with its true face
+    seeds = [f"0:{i}:{scene.truth[(0, i)]}" for i in range(len(scene.keyframes[0].planes)) if scene.truth[(0, i)]]
+    result = run(root, "-o", tmp_path / "out", "--mode", "offline", *sum((["--seed", s] for s in seeds), []))
+    assert result.exit_code == 0, result.output
+    result = run(root, "-o", tmp_path / "out2", "--seed", "0:99:r00S")
+    assert result.exit_code == 4 and "no plane 99" in result.output

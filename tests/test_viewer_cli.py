@@ -1,0 +1,144 @@
+"""`bimgraph run --rrd` and `bimgraph view`, end to end on a sequence folder written from the
+backend's synthetic scene (plane map JSON, ground truth), read back with rerun's reader."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+os.environ.setdefault("RERUN_ANALYTICS", "0")
+
+from bimgraph.backend.synthetic import make_scene  # noqa: E402
+from bimgraph.bim.planemap import save_plane_map  # noqa: E402
+from bimgraph.cli import app  # noqa: E402
+from bimgraph.config import ViewerConfig  # noqa: E402
+from bimgraph.deviations.report import JSON_FILE, DeviationsFile, FaceRecord  # noqa: E402
+from bimgraph.files import write_json  # noqa: E402
+from bimgraph.sequence.format import Camera, InitialAlignment, Sequence, SequenceMeta, save_sequence  # noqa: E402
+from bimgraph.sequence.groundtruth import GroundTruth, pose7, write_groundtruth  # noqa: E402
+from bimgraph.viewer import blueprint as bp  # noqa: E402
+from bimgraph.viewer.rerun_viewer import face_entity  # noqa: E402
+from bimgraph.viewer.rrd import row_counts, verify  # noqa: E402
+
+N_KEYFRAMES = 60
+
+
+@pytest.fixture(scope="module")
+def seq_dir(tmp_path_factory):
+    scene = make_scene(n_keyframes=N_KEYFRAMES, rooms=(1, 2), seed=5)
+    root = tmp_path_factory.mktemp("viewer_cli") / "seq"
+    root.mkdir()
+    save_plane_map(scene.plane_map, root / "planes.json")
+    meta = SequenceMeta(name="synthetic", model="planes.json", sensor="planes",
+                        camera=Camera(width=640, height=480, fx=525.0, fy=525.0, cx=319.5, cy=239.5),
+                        initial_alignment=InitialAlignment(T_B_S=tuple(pose7(scene.initial.T_B_S))))
+    save_sequence(Sequence(root=root, meta=meta, keyframes=scene.keyframes))
+    observations = [[{"face_id": scene.truth.get((kf.index, i))} for i in range(len(kf.planes))] for kf in scene.keyframes]
+    write_groundtruth(root, GroundTruth(np.array([kf.stamp for kf in scene.keyframes]), np.array(scene.T_B_C),
+                                        scene.T_B_S, {}, observations, {}, [{"index": k, "faces": {}} for k in range(N_KEYFRAMES)]))
+    return root, scene
+
+
+def scalars(path, entity):
+    from rerun.chunk import RrdReader
+
+    rows = []
+    for chunk in RrdReader(str(path)).store().stream():
+        if chunk.entity_path == entity:
+            batch = chunk.to_record_batch()
+            if "Scalars:scalars" in batch.schema.names:
+                rows += list(zip(batch.column("keyframe").to_pylist(), batch.column("Scalars:scalars").to_pylist()))
+    return np.array([v for _, v in sorted(rows)])
+
+
+def albedo(path, entity):
+    from rerun.chunk import RrdReader
+
+    rows = []
+    for chunk in RrdReader(str(path)).store().stream():
+        if chunk.entity_path == entity:
+            batch = chunk.to_record_batch()
+            if "Mesh3D:albedo_factor" in batch.schema.names and "keyframe" in batch.schema.names:
+                rows += list(zip(batch.column("keyframe").to_pylist(), batch.column("Mesh3D:albedo_factor").to_pylist()))
+    return [v[0] for _, v in sorted(rows, key=lambda r: r[0])]
+
+
+def rgba_u32(colour):
+    r, g, b, a = colour
+    return (r << 24) | (g << 16) | (b << 8) | a
+
+
+@pytest.fixture(scope="module")
+def online_run(seq_dir):
+    root, _ = seq_dir
+    out = root.parent / "out"
+    result = CliRunner().invoke(app, ["run", str(root), "-o", str(out), "--rrd", str(out / "run.rrd")])
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def test_run_rrd_holds_the_whole_run(online_run, seq_dir):
+    _, scene = seq_dir
+    path = online_run / "run.rrd"
+    verify(path)
+    counts = row_counts(path)
+    assert sum("Mesh3D:vertex_positions" in c for c in counts.values()) == len(scene.plane_map.faces)
+    for trail in (bp.RAW, bp.CORRECTED, bp.TRUTH):
+        assert counts["/" + trail]["LineStrips3D:strips"] == N_KEYFRAMES - 1
+    for name in ("latency_ms/backend", "position_error_cm/corrected", "extrinsic_cm/error", "extrinsic_cm/sigma"):
+        assert counts[f"/{bp.METRICS}/{name}"]["Scalars:scalars"] == N_KEYFRAMES, name
+    # the viewer follows the real run: its error series say the correction worked
+    corrected, raw = scalars(path, f"/{bp.METRICS}/position_error_cm/corrected"), scalars(path, f"/{bp.METRICS}/position_error_cm/raw")
+    assert corrected[-1] < raw[-1]
+
+
+def test_view_replays_the_outputs(online_run, seq_dir):
+    root, scene = seq_dir
+    faces = [f.id for f in scene.plane_map.faces]
+    write_json(online_run / JSON_FILE, DeviationsFile(tolerance_m=0.02, tilt_tolerance_deg=0.5, k_sigma=2.0, unplanned=[], faces=[
+        FaceRecord(face_id=faces[1], wall_guid="w", status="deviating"),
+        FaceRecord(face_id=faces[2], wall_guid="w", status="within_tolerance")]).model_dump(mode="json"))
+    result = CliRunner().invoke(app, ["view", str(online_run), "--sequence", str(root), "--rrd", str(online_run / "view.rrd")])
+    assert result.exit_code == 0, result.output
+    run, view = online_run / "run.rrd", online_run / "view.rrd"
+    verify(view)
+    counts = row_counts(view)
+    for trail in (bp.RAW, bp.CORRECTED, bp.TRUTH):
+        assert counts["/" + trail]["LineStrips3D:strips"] == N_KEYFRAMES - 1
+    # the extrinsic recovered from the two trajectory files is the one the run logged live
+    for name in ("extrinsic_cm/change", "extrinsic_deg/change", "position_error_cm/corrected"):
+        entity = f"/{bp.METRICS}/{name}"
+        np.testing.assert_allclose(scalars(view, entity), scalars(run, entity), atol=1e-4, err_msg=name)
+    colours = ViewerConfig()
+    assert albedo(view, "/" + face_entity(faces[1]))[-1] == rgba_u32(colours.colour_deviating)
+    assert albedo(view, "/" + face_entity(faces[2]))[-1] != rgba_u32(colours.colour_deviating)
+    (online_run / JSON_FILE).unlink()
+
+
+def test_view_without_sequence_is_a_one_line_error(online_run):
+    result = CliRunner().invoke(app, ["view", str(online_run), "--rrd", str(online_run / "x.rrd")])
+    assert result.exit_code == 2
+    assert "--sequence" in result.output and "Traceback" not in result.output
+
+
+def test_plot_run_draws_the_run(online_run, seq_dir, tmp_path):
+    pytest.importorskip("matplotlib")
+    import importlib.util
+
+    import cv2
+
+    from bimgraph.config import Config
+
+    spec = importlib.util.spec_from_file_location("plot_run", os.path.join(os.path.dirname(__file__), "..", "scripts", "plot_run.py"))
+    plot_run = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(plot_run)
+    png = tmp_path / "run.png"
+    plot_run.plot_run(online_run, seq_dir[0], png, Config())
+    image = cv2.imread(str(png))
+    assert image is not None and image.shape[0] > 500
+    # the corrected trajectory's blue is drawn
+    blue = np.array(Config().viewer.colour_corrected[:3][::-1])  # BGR
+    assert (np.abs(image.astype(int) - blue).sum(axis=2) < 30).sum() > 100

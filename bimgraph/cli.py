@@ -119,8 +119,8 @@ def planes(
 
     from bimgraph.config import load_config
     from bimgraph.errors import ConfigError
-    from bimgraph.planes.sequence import detect_planes, resolve_camera
-    from bimgraph.sequence.format import META_FILE, load_sequence, save_sequence
+    from bimgraph.planes.sequence import extract_into, resolve_camera
+    from bimgraph.sequence.format import META_FILE, load_sequence
     from bimgraph.sequence.tum_rgbd import DEPTH_LIST, load_camera, load_tum_rgbd, read_image_list
 
     cfg = load_config(config_file)
@@ -140,14 +140,12 @@ def planes(
         camera = resolve_camera(seq, camera_file, pinhole, first)
     else:
         raise ConfigError(f"{seqdir}: no {META_FILE}; for a TUM RGB-D folder give --trajectory")
-    seq.meta.camera = camera
     out = console()
     with Progress(console=out, transient=True) as progress:
         task = progress.add_task("extracting planes", total=len(seq.keyframes))
-        report = detect_planes(seq, camera, cfg.planes, cfg.depth_noise, on_frame=lambda kf: progress.advance(task))
+        report = extract_into(seq, camera, cfg, on_frame=lambda kf, extraction: progress.advance(task))
     for line in report.problems:
         out.print(f"[yellow]skipped[/yellow] {line}", highlight=False, soft_wrap=True)
-    save_sequence(seq)
     out.print(f"{report.planes} planes in {report.frames} frames ({len(report.problems)} skipped) -> {seqdir}", soft_wrap=True)
 
 

@@ -110,6 +110,7 @@ class ObserveConfig(Section):
     offset_sigma_m: float = Field(0.012, ge=0, description="offset noise of a plane seen frontally at 1 m")
     small_area_m2: float = Field(1.0, gt=0, description="planes smaller than this are noisier, as sqrt(small_area / area), up to twice")
     floors_and_ceilings: bool = Field(True, description="also detect floor and ceiling planes")
+    oversegment_probability: float = Field(0.05, ge=0, le=1, description="chance that a detector splits a plane (twice the minimum area or more) into two detections")
 
 
 class SimConfig(Section):
@@ -246,7 +247,7 @@ class BimAssociationConfig(Section):
     coplanar_normal_deg: float = Field(0.5, gt=0, description="faces this close in normal...")
     coplanar_offset_m: float = Field(0.01, gt=0, description="...and in offset are one plane (sections of one wall), matched as a group")
     ambiguity_margin: float = Field(9.0, ge=0, description="a match is deferred while a second face scores within this many chi-square units of the best")
-    revision_normal_deg: float = Field(4.0, gt=0, description="an associated landmark whose normal strays more than this from its face (in B, current estimate) is unmatched")
+    revision_normal_deg: float = Field(3.0, gt=0, description="an associated landmark whose normal strays more than this from its face (in B, current estimate) is unmatched")
     revision_offset_m: float = Field(0.25, gt=0, description="an associated landmark whose offset strays more than this from its face is unmatched")
 
 
@@ -255,6 +256,7 @@ class Isam2Config(Section):
 
     relinearize_threshold: float = Field(0.01, gt=0, description="relinearise a variable when its delta exceeds this")
     relinearize_skip: int = Field(1, ge=1, description="check for relinearisation every this many updates")
+    partial_relinearization_check: bool = Field(True, description="check relinearisation only where the update reached (about 2x faster updates, slightly less accurate causal estimates)")
     extra_updates: int = Field(1, ge=0, description="further iSAM2 updates after adding plane-to-BIM factors")
     refresh_every: int = Field(25, ge=1, description="refresh the cached estimates of every landmark every this many keyframes (observed ones are refreshed always)")
     covariance_early: int = Field(4, ge=1, description="re-read a landmark's marginal covariance at each of its first this many observations...")

@@ -65,7 +65,7 @@ def sequences(args) -> None:
             if sensor == "depth" and not args.keep_depth:
                 for folder in ("depth", "rgb", f"groundtruth/{LABELS_FOLDER}"):
                     shutil.rmtree(out / folder, ignore_errors=True)
-    Console().print(table)
+    Console(width=200).print(table)
 
 
 def calibrate(args) -> None:

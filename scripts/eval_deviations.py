@@ -1,29 +1,31 @@
 """Issue 8's acceptance, as far as the pieces allow: run the offline backend on a world with
 as-built deviations, missing walls and clutter, report the deviations, and score them against
-the ground truth; and compare extrinsic error and ATE with the same world built as planned.
+the ground truth; and compare extrinsic error and ATE with the same world without deviations.
 
-    python scripts/eval_deviations.py --sequences SEQ... --clean CLEANSEQ... [--snoop]
-    python scripts/eval_deviations.py --synthetic [--seeds 0 1 2] [--snoop]
+    python scripts/eval_deviations.py --sequences SEQ... --clean NODEVSEQ... [--oracle] [--snoop]
+    python scripts/eval_deviations.py --synthetic [--seeds 0 1 2] [--snoop] [-c CONFIG]
 
 `--sequences` are simulator sequences (`bimgraph simulate`, with `groundtruth/as_built.json`);
-`--clean` the same scenarios and seeds simulated without deviations and missing walls (for the
-extrinsic and ATE ratios). On the synthetic world, `clean_*` is the world as planned and
-`nodev_*` the same missing walls without deviations; the ratios are against the latter. `--synthetic` uses the backend's synthetic rooms (`bimgraph.backend.synthetic`), with a share
-of faces moved 5-10 cm and a share not built (their observations removed). `--oracle` gives the backend the true associations, to measure
-the deviation step apart from the association. `--snoop` also
-removes, at every offline round, the plane-to-BIM factors of faces found deviating against the
-rest (`bimgraph.deviations.robust.snoop`): the proposed robust alignment.
+`--clean` the same scenarios and seeds simulated without deviations (for the extrinsic and ATE
+ratios). `--synthetic` uses the backend's synthetic rooms (`bimgraph.backend.synthetic`), with
+a share of faces moved 5-10 cm and a share not built (their observations removed); there
+`clean_*` is the world as planned and `nodev_*` the same missing walls without deviations,
+and the ratios are against the latter. `--oracle` gives the backend the true associations, to
+measure the deviation step apart from the association. `--snoop` also removes, at every
+offline round, the plane-to-BIM factors of faces found deviating against the rest
+(`bimgraph.deviations.robust.snoop`): the proposed robust alignment.
 
 The backend does not yet hand out its final graph, so this script reads it through a
-subclass of `OfflineEstimator` (its `_graph`, `_revise` and `_results` steps); the hook the backend should offer instead is in the issue 8 report.
+subclass of `OfflineEstimator` (its `_graph`, `_revise`, `_associate` and `_results` steps);
+the hook the backend should offer instead is in the issue 8 report.
 """
 
 from __future__ import annotations
 
 import argparse
-from collections import Counter
 import tempfile
 import time
+from collections import Counter
 from functools import partial
 from pathlib import Path
 

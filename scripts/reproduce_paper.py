@@ -50,9 +50,11 @@ def one_run(job: dict) -> dict:
     simulate(SimOptions(output=seq, scenario=job["scenario"], ifc=None, sensor=job["sensor"],
                         keyframes=job["keyframes"], seed=job["seed"]), cfg)
     if job["sensor"] == "depth":
-        from bimgraph.planes.sequence import extract_sequence_planes
+        from bimgraph.planes.sequence import extract_into
+        from bimgraph.sequence.format import load_sequence
 
-        extract_sequence_planes(seq, cfg)
+        sequence = load_sequence(seq)
+        extract_into(sequence, sequence.meta.camera, cfg)
     timings = {"simulate_s": time.perf_counter() - clock}
     for mode in ("online", "offline"):
         clock = time.perf_counter()

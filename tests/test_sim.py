@@ -69,6 +69,9 @@ def test_sequence_and_ground_truth_load_and_align(office):
     faces = [p["face_id"] for obs in gt.observations for p in obs]
     assert sum(f is not None for f in faces) > 0.4 * len(faces)
     assert sum(f is None for f in faces) > 0
+    # Every observed face is among the keyframe's visible faces.
+    for obs, vis in zip(gt.observations, gt.visible):
+        assert {p["face_id"] for p in obs} - {None} <= set(vis["faces"])
     # The manual alignment is off by the configured amounts.
     ia = gt.extrinsic["initial_alignment"]
     assert 1.0 <= abs(ia["yaw_error_deg"]) <= 2.0
@@ -216,7 +219,8 @@ def test_rendered_depth_is_the_distance_to_the_as_built_face(tmp_path):
     _run(root, scenario="office", keyframes=4, seed=2, sensor="depth")
     seq, gt = load_sequence(root), load_groundtruth(root)
     assert seq.meta.sensor == "depth" and seq.keyframes[0].depth.startswith("depth/")
-    assert len((root / "depth.txt").read_text().splitlines()) == 3 + 4
+    listed = [line for line in (root / "depth.txt").read_text().splitlines() if not line.startswith("#")]
+    assert len(listed) == 4
     elements = _elements(gt)
     mesh = triangulate(elements)
     renderer = DepthRenderer(mesh.vertices, mesh.triangles, mesh.element)
@@ -305,3 +309,17 @@ def test_shared_ifc_model(tmp_path, ifc_samples):
     # Over the ground floor slab (0..12 x 0..10 m in this model), not outside.
     xy = gt.T_B_C[:, :2, 3]
     assert np.all((xy > -0.1) & (xy < [12.1, 10.1]))
+
+
+def test_over_segmentation_splits_a_surface_in_two(office):
+    from shapely.geometry import box
+
+    from bimgraph.sim.observe import split_in_two
+
+    pieces = split_in_two(box(0, 0, 4, 2))
+    assert sorted(p.area for p in pieces) == pytest.approx([4.0, 4.0])
+    assert pieces[0].intersection(pieces[1]).area == pytest.approx(0.0)
+    gt = load_groundtruth(office[0])
+    doubled = sum(len(obs) - len({p["element"] for p in obs}) for obs in gt.observations)
+    total = sum(len(obs) for obs in gt.observations)
+    assert 0 < doubled < 0.1 * total

@@ -100,6 +100,7 @@ class IncrementalGraph:
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(cfg.isam2.relinearize_threshold)
         params.relinearizeSkip = cfg.isam2.relinearize_skip
+        params.enablePartialRelinearizationCheck = cfg.isam2.partial_relinearization_check
         self.cfg = cfg
         self.isam = gtsam.ISAM2(params)
         self.build = FactorBuilder(cfg)

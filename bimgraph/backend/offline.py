@@ -37,7 +37,7 @@ class OfflineEstimator:
         self.cfg = cfg
         self.listener = listener or Listener()
         # the causal pass reports nothing: the listener hears the smoothed results
-        self.online = Backend(plane_map, cfg, initial, None, oracle)
+        self.online = Backend(plane_map, cfg, initial, None, oracle, covariance=False)
         self.faces, self.bim, self.landmarks = self.online.faces, self.online.bim, self.online.landmarks
         self.oracle = oracle
 

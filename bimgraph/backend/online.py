@@ -53,8 +53,9 @@ class Backend:
     """
 
     def __init__(self, plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,
-                 listener: Listener | None = None, oracle: Oracle | None = None):
+                 listener: Listener | None = None, oracle: Oracle | None = None, covariance: bool = True):
         self.cfg = cfg
+        self.covariance = covariance  # False: results carry NaN covariances (a pass nobody reads)
         self.faces = FaceIndex(plane_map, cfg.bim_association)
         self.bim = BimAssociator(self.faces, cfg.bim_association)
         self.slam = SlamAssociator(cfg.slam_association)
@@ -96,9 +97,9 @@ class Backend:
         T_S_B = values.atPose3(E)
         T_B_S = T_S_B.inverse().matrix()
         self._previous = (k, kf.pose, T_S_C)
+        cov = cov_T_B_S(T_S_B, self.graph.marginal(E)) + self.locked_cov if self.covariance else np.full((6, 6), np.nan)
         result = KeyframeResult(
-            index=k, stamp=kf.stamp, T_S_C=T_S_C, T_B_C=T_B_S @ T_S_C, T_B_S=T_B_S,
-            cov_T_B_S=cov_T_B_S(T_S_B, self.graph.marginal(E)) + self.locked_cov,
+            index=k, stamp=kf.stamp, T_S_C=T_S_C, T_B_C=T_B_S @ T_S_C, T_B_S=T_B_S, cov_T_B_S=cov,
             associations=[Association(obs.index, j, self._face_of(j, T_B_S)) for obs, j in zip(observations, observed)],
             latency_s=time.perf_counter() - start, isam2_s=self.graph.update_seconds - isam2_before)
         self.listener.on_keyframe(result)

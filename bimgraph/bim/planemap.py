@@ -96,7 +96,8 @@ class PlaneMap(BaseModel):
     format: Literal["bimgraph.planemap"] = FORMAT
     version: Literal[1] = VERSION
     source: str = ""
-    origin: str = "the IFC project's world coordinate system, without any map conversion"
+    # Free text for people: what frame B is (the importer says; a hand-written map may too).
+    origin: str = "as the author of the map chose: metres, z up"
     # Where B sits in the IFC file's world frame, so that results can go back into the model
     # (BCF viewpoints): [tx, ty, tz, qx, qy, qz, qw], metres; None when B is that frame.
     T_W_B: tuple[float, float, float, float, float, float, float] | None = None

@@ -129,6 +129,11 @@ def split_face(face: Face, claims: list[Claim], grid: float) -> list[tuple[objec
             if group:
                 out.append((shapely.union_all(group), claims[0] if group_reached else None))
         return out
+    # A room often claims a face in pieces (a boundary each side of a door): one region each.
+    merged: dict[tuple, list] = {}
+    for claim in claims:
+        merged.setdefault((claim.space_guid, claim.method), []).append(claim.region)
+    claims = [Claim(guid, method, shapely.union_all(regions)) for (guid, method), regions in merged.items()]
     remaining = face.region
     parts: dict[str, list] = {}
     for claim in claims:
@@ -143,18 +148,29 @@ def split_face(face: Face, claims: list[Claim], grid: float) -> list[tuple[objec
     # Unclaimed area (a slab edge above two rooms) is cut where the sections' sides are, so
     # that each piece goes to the room it continues.
     cuts = np.unique([x for region, _ in parts.values() for p in polygons(region) for x in p.bounds[0::2]])
-    u0, v0, u1, v1 = face.region.bounds
-    strips = [shapely.box(a, v0 - 1, b, v1 + 1) for a, b in zip([u0 - 1, *cuts], [*cuts, u1 + 1])]
-    pieces = [piece for leftover in polygons(remaining) for strip in strips
-              for piece in polygons(leftover.intersection(strip, grid_size=grid))]
+    pieces = []
+    for leftover in polygons(remaining):
+        u0, v0, u1, v1 = leftover.bounds
+        inner = cuts[(cuts > u0 + grid) & (cuts < u1 - grid)]
+        edges = [u0 - 1, *inner, u1 + 1]
+        pieces += [piece for a, b in zip(edges, edges[1:]) for piece in polygons(
+            leftover.intersection(shapely.box(a, v0 - 1, b, v1 + 1), grid_size=grid))] if len(inner) else [leftover]
+    # The border a piece shares with a part, as the area of the piece within 2 grid of it.
+    grown = {guid: part[0].buffer(2 * grid) for guid, part in parts.items()}
+    merged_pieces = {guid: [] for guid in parts}
     unclaimed = []
     for leftover in pieces:
-        shared = {guid: leftover.buffer(2 * grid).intersection(part[0]).area for guid, part in parts.items()}
+        if leftover.area < grid * grid:
+            continue  # a sliver left by rounding
+        shared = {guid: leftover.intersection(region).area for guid, region in grown.items()}
         best = max(shared, key=shared.get, default=None)
         if best is not None and shared[best] > 0:
-            parts[best][0] = parts[best][0].union(leftover, grid_size=grid)
+            merged_pieces[best].append(leftover)
         else:
             unclaimed.append(leftover)
+    for guid, extra in merged_pieces.items():
+        if extra:
+            parts[guid][0] = shapely.union_all([parts[guid][0], *extra], grid_size=grid)
     out = [(region, claim) for region, claim in parts.values()]
     if unclaimed:
         out.append((shapely.union_all(unclaimed, grid_size=grid), None))

@@ -29,10 +29,11 @@ from bimgraph.deviations.visibility import face_shape
 from bimgraph.geometry import inverse, normal_angle_deg, plane_to_frame, point_plane_distance
 
 
-def _overlap(face: BimFace, points_B: np.ndarray, cfg: DeviationConfig) -> bool:
-    """The landmark's extent covers at least `match_min_overlap_m2` of the face; with fewer
-    than three extent points, its centre lies within `match_margin_m` of the face."""
-    shape, origin, basis = face_shape(face)
+def _overlap(face_2d, points_B: np.ndarray, cfg: DeviationConfig) -> bool:
+    """The landmark's extent covers at least `match_min_overlap_m2` of the face (given by
+    `face_shape`); with fewer than three extent points, its centre lies within
+    `match_margin_m` of the face."""
+    shape, origin, basis = face_2d
     xy = (points_B - origin) @ basis
     if len(xy) >= 3:
         hull = shapely.MultiPoint(xy).convex_hull
@@ -46,6 +47,7 @@ def proximity_matches(faces: Sequence[BimFace], planes: Sequence[ObservedPlane],
     passes within `match_max_offset_m` of its centre and overlaps it (`_overlap`). A plane may
     serve several faces: one wall plane spans the coplanar faces of neighbouring rooms."""
     T_B_S = inverse(T_S_B)
+    shapes = {face.id: face_shape(face) for face in faces}
     best: dict[str, tuple[float, ObservedPlane]] = {}
     for plane in planes:
         extent_B = plane.extent_in(T_B_S)
@@ -58,7 +60,7 @@ def proximity_matches(faces: Sequence[BimFace], planes: Sequence[ObservedPlane],
             dist = abs(float(point_plane_distance(np.asarray(face.centre), plane_B)))
             if dist > cfg.match_max_offset_m or (face.id in best and best[face.id][0] <= dist):
                 continue
-            if _overlap(face, extent_B, cfg):
+            if _overlap(shapes[face.id], extent_B, cfg):
                 best[face.id] = (dist, plane)
     return {face_id: plane for face_id, (_, plane) in best.items()}
 
@@ -74,13 +76,14 @@ def assess(plane_map: PlaneMap, planes: Sequence[ObservedPlane], T_S_B: np.ndarr
     `visibility.expected_view_counts`); without it no face is listed as possibly not built."""
     report = DeviationReport(cfg.tolerance_m, cfg.tilt_tolerance_deg, cfg.k_sigma)
     faces = {f.id: f for f in plane_map.faces}
+    expected = expected_views or {}
 
     measured: dict[str, tuple[FaceReport, float]] = {}
 
     def measure(face: BimFace, plane: ObservedPlane, how: str):
         dev = face_deviation(face, plane, T_S_B)
         entry = FaceReport(face.id, face.wall_guid, face.wall_name, face.storey, classify(dev, plane.n_keyframes, cfg),
-                           plane.n_keyframes, dev, plane.landmark, how, (expected_views or {}).get(face.id, 0))
+                           plane.n_keyframes, dev, plane.landmark, how, expected.get(face.id, 0))
         # Two landmarks on one face (seen on two separate visits): keep the better measured one.
         if face.id not in measured or dev.offset_sigma_m < measured[face.id][1]:
             measured[face.id] = (entry, dev.offset_sigma_m)
@@ -95,7 +98,7 @@ def assess(plane_map: PlaneMap, planes: Sequence[ObservedPlane], T_S_B: np.ndarr
     report.faces = [measured[f.id][0] for f in plane_map.faces if f.id in measured]
 
     for face in plane_map.faces:
-        seen_from = (expected_views or {}).get(face.id, 0)
+        seen_from = expected.get(face.id, 0)
         if face.id not in measured and seen_from >= cfg.min_expected_keyframes:
             report.faces.append(FaceReport(face.id, face.wall_guid, face.wall_name, face.storey, "possibly_not_built",
                                            expected_keyframes=seen_from))

@@ -7,10 +7,10 @@ from typing import Callable
 
 import numpy as np
 
-from bimgraph.config import DepthNoiseConfig, ExtractionConfig
+from bimgraph.config import Config, DepthNoiseConfig, ExtractionConfig
 from bimgraph.errors import BimgraphError, InputError
-from bimgraph.planes.extractor import DetectedPlane, PlaneExtractor
-from bimgraph.sequence.format import Camera, Keyframe, PlaneObservation, Sequence
+from bimgraph.planes.extractor import DetectedPlane, Extraction, PlaneExtractor
+from bimgraph.sequence.format import Camera, Keyframe, PlaneObservation, Sequence, save_sequence
 from bimgraph.sequence.tum_rgbd import read_depth_png
 
 
@@ -43,22 +43,47 @@ def load_depth(seq: Sequence, kf: Keyframe, camera: Camera) -> np.ndarray:
 
 
 def detect_planes(seq: Sequence, camera: Camera, cfg: ExtractionConfig, noise: DepthNoiseConfig,
-                  on_frame: Callable[[Keyframe], None] | None = None) -> DetectionReport:
+                  on_frame: Callable[[Keyframe, Extraction | None], None] | None = None) -> DetectionReport:
     """Replace every keyframe's planes by those extracted from its depth image. A frame that
-    cannot be read gets no planes and one line in the report; the others go on."""
+    cannot be read gets no planes (and `on_frame` no extraction) and one line in the report;
+    the others go on."""
     extractor = PlaneExtractor(camera, cfg, noise)
     report = DetectionReport()
     for i, kf in enumerate(seq.keyframes):
         try:
-            planes = extractor.extract(load_depth(seq, kf, camera)).planes
+            extraction = extractor.extract(load_depth(seq, kf, camera))
+            planes = extraction.planes
         except BimgraphError as err:
             report.problems.append(str(err))
-            planes = []
+            extraction, planes = None, []
         seq.keyframes[i] = kf.model_copy(update={"planes": [observation(p) for p in planes]})
         report.frames += 1
         report.planes += len(planes)
         if on_frame is not None:
-            on_frame(kf)
+            on_frame(kf, extraction)
+    return report
+
+
+def extract_into(seq: Sequence, camera: Camera, cfg: Config,
+                 on_frame: Callable[[Keyframe, Extraction | None], None] | None = None) -> DetectionReport:
+    """Extract the planes of every keyframe and save the sequence; a simulated depth sequence
+    also gets the ground truth of its new planes, so that it can be evaluated."""
+    from bimgraph.sim.labels import simulated_labeller
+
+    labeller = simulated_labeller(seq.root)
+    position = {kf.index: i for i, kf in enumerate(seq.keyframes)}
+
+    def frame(kf: Keyframe, extraction: Extraction | None) -> None:
+        if labeller is not None:
+            labeller.label(position[kf.index], kf, extraction)
+        if on_frame is not None:
+            on_frame(kf, extraction)
+
+    seq.meta.camera = camera
+    report = detect_planes(seq, camera, cfg.planes, cfg.depth_noise, frame)
+    save_sequence(seq)
+    if labeller is not None:
+        labeller.save(seq.root)
     return report
 
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from shapely.geometry import Polygon
+from shapely.geometry import Polygon, box
 
 from bimgraph.config import ObserveConfig
 from bimgraph.geometry import inverse, plane_to_frame
@@ -89,7 +89,6 @@ def detect(depth: np.ndarray, ids: np.ndarray, coarse: Camera, T_B_C: np.ndarray
                                 (np.arange(coarse.height) - coarse.cy) / coarse.fy), axis=-1)
     in_range = (depth >= cfg.min_range_m) & (depth <= cfg.max_range_m) & (ids >= 0)
     pixel_area = stride * stride
-    T_C_B = inverse(T_B_C)
     camera_B = T_B_C[:3, 3]
     visible: dict[int, int] = {}
     detections = []
@@ -114,25 +113,51 @@ def detect(depth: np.ndarray, ids: np.ndarray, coarse: Camera, T_B_C: np.ndarray
         if part is None:
             continue
         origin, basis = element.frame
-        ring_B = origin + np.asarray(part.exterior.coords)[:-1] @ basis.T
-        centre_B = origin + np.asarray(part.centroid.coords)[0] @ basis.T
-        to_centre = centre_B - camera_B
-        range_m = float(np.linalg.norm(to_centre))
-        cos_view = abs(float(element.plane[:3] @ to_centre)) / range_m
+        to_centre = origin + np.asarray(part.centroid.coords)[0] @ basis.T - camera_B
+        cos_view = abs(float(element.plane[:3] @ to_centre)) / float(np.linalg.norm(to_centre))
         if part.area < cfg.min_area_m2 or np.degrees(np.arccos(min(cos_view, 1.0))) > cfg.max_obliquity_deg:
             continue
-        sigma_n, sigma_d = plane_sigmas(range_m, cos_view, part.area, cfg)
-        noisy = perturb_plane(plane_C, sigma_n, sigma_d, rng)
-        ring_C = _project(ring_B @ T_C_B[:3, :3].T + T_C_B[:3, 3], noisy)
-        centre_C = _project((T_C_B[:3, :3] @ centre_B + T_C_B[:3, 3])[None], noisy)[0]
-        cov = np.diag([sigma_n**2, sigma_n**2, sigma_d**2])
-        observation = PlaneObservation(
-            n=tuple(rounded(noisy[:3])), d=rounded(noisy[3]), cov=tuple(tuple(rounded(r, 12)) for r in cov),
-            polygon=[tuple(rounded(p)) for p in ring_C], area=rounded(part.area), centre=tuple(rounded(centre_C)),
-            inliers=count * pixel_area,
-        )
-        detections.append(Detection(observation, e, plane_C))
+        # A detector sometimes breaks one surface into two planes.
+        pieces = [part]
+        if part.area >= 2 * cfg.min_area_m2 and rng.random() < cfg.oversegment_probability:
+            pieces = split_in_two(part)
+        for piece in pieces:
+            observation = _observe(piece, element, plane_C, T_B_C, round(count * pixel_area * piece.area / part.area), cfg, rng)
+            detections.append(Detection(observation, e, plane_C))
     return detections, visible
+
+
+def split_in_two(part: Polygon) -> list[Polygon]:
+    """The polygon cut across its longer side through its centroid (the larger pieces of the
+    cut if it falls apart into more)."""
+    (x0, y0, x1, y1), (cx, cy) = part.bounds, part.centroid.coords[0]
+    cut = box(cx, y0 - 1, x1 + 1, y1 + 1) if x1 - x0 >= y1 - y0 else box(x0 - 1, cy, x1 + 1, y1 + 1)
+    halves = [part.intersection(cut), part.difference(cut)]
+    pieces = [max(getattr(h, "geoms", [h]), key=lambda g: g.area) for h in halves if not h.is_empty]
+    return [p for p in pieces if p.geom_type == "Polygon" and p.area > 0] or [part]
+
+
+def _observe(part: Polygon, element: Element, plane_C: np.ndarray, T_B_C: np.ndarray, inliers: int,
+             cfg: ObserveConfig, rng: np.random.Generator) -> PlaneObservation:
+    """The noisy detection of the visible `part` of `element`: its plane in C perturbed by the
+    noise of its view, its outline and centre projected onto that plane."""
+    origin, basis = element.frame
+    T_C_B = inverse(T_B_C)
+    ring_B = origin + np.asarray(part.exterior.coords)[:-1] @ basis.T
+    centre_B = origin + np.asarray(part.centroid.coords)[0] @ basis.T
+    to_centre = centre_B - T_B_C[:3, 3]
+    range_m = float(np.linalg.norm(to_centre))
+    cos_view = abs(float(element.plane[:3] @ to_centre)) / range_m
+    sigma_n, sigma_d = plane_sigmas(range_m, cos_view, part.area, cfg)
+    noisy = perturb_plane(plane_C, sigma_n, sigma_d, rng)
+    ring_C = _project(ring_B @ T_C_B[:3, :3].T + T_C_B[:3, 3], noisy)
+    centre_C = _project((T_C_B[:3, :3] @ centre_B + T_C_B[:3, 3])[None], noisy)[0]
+    cov = np.diag([sigma_n**2, sigma_n**2, sigma_d**2])
+    return PlaneObservation(
+        n=tuple(rounded(noisy[:3])), d=rounded(noisy[3]), cov=tuple(tuple(rounded(r, 12)) for r in cov),
+        polygon=[tuple(rounded(p)) for p in ring_C], area=rounded(part.area), centre=tuple(rounded(centre_C)),
+        inliers=inliers,
+    )
 
 
 def _project(points: np.ndarray, plane: np.ndarray) -> np.ndarray:

@@ -236,16 +236,16 @@ def _write_images(out: Path, renderer, camera: Camera, T_B_C, stamp, cfg: Config
     import cv2
 
     from bimgraph.sim.render import add_depth_noise
+    from bimgraph.sequence.tum_rgbd import write_depth_png
 
     depth, ids, cos_incidence = renderer.render(camera, T_B_C, with_incidence=True)
     noisy = add_depth_noise(depth, cfg.depth_noise, rng, cos_incidence)
     name = _image_name(stamp)
-    depth_png = np.clip(np.round(noisy * camera.depth_scale), 0, 65535).astype(np.uint16)
+    write_depth_png(out / "depth" / name, noisy, camera.depth_scale)
     palette = (np.abs(np.sin(np.arange(1, max(int(ids.max()), 0) + 2)[:, None] * [12.9898, 78.233, 37.719])) * 160 + 60).astype(float)
     shade = 0.35 + 0.65 * cos_incidence
     rgb = np.where(ids[..., None] >= 0, palette[np.maximum(ids, 0)] * shade[..., None], 0).astype(np.uint8)
-    for folder, image in [("depth", depth_png), ("rgb", rgb[..., ::-1]),
-                          (f"groundtruth/{LABELS_FOLDER}", (ids + 1).astype(np.uint16))]:
+    for folder, image in [("rgb", rgb[..., ::-1]), (f"groundtruth/{LABELS_FOLDER}", (ids + 1).astype(np.uint16))]:
         (out / folder).mkdir(parents=True, exist_ok=True)
         cv2.imwrite(str(out / folder / name), image)
     return f"depth/{name}", f"rgb/{name}"
@@ -253,10 +253,8 @@ def _write_images(out: Path, renderer, camera: Camera, T_B_C, stamp, cfg: Config
 
 def _write_tum_lists(out: Path, stamps) -> None:
     """depth.txt and rgb.txt as in the TUM RGB-D benchmark, so its loaders read the folder."""
-    from bimgraph.files import write_atomic
+    from bimgraph.sequence.tum_rgbd import write_image_list
 
+    stamps = np.round(stamps, 6)
     for kind in ("depth", "rgb"):
-        lines = [f"# {kind} images", "# file: simulated by bimgraph", "# timestamp filename"]
-        lines += [f"{s:.6f} {kind}/{_image_name(s)}" for s in np.round(stamps, 6)]
-        write_atomic(out / f"{kind}.txt", "\n".join(lines) + "\n")
-
+        write_image_list(out / f"{kind}.txt", stamps, [f"{kind}/{_image_name(s)}" for s in stamps], kind)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import TypeVar
 
+import numpy as np
+
 from pydantic import BaseModel, ValidationError
 
 from bimgraph.errors import FormatError
@@ -30,3 +32,11 @@ def parse_model(model: type[M], data, where: str) -> M:
         return model.model_validate(data)
     except ValidationError as err:
         raise FormatError(f"{where}: {describe(err)}") from None
+
+
+def require_unit(values, what: str, tol: float = 1e-3):
+    """A pydantic validator body: `values` must have norm 1 (within `tol`)."""
+    norm = float(np.linalg.norm(values))
+    if abs(norm - 1.0) > tol:
+        raise ValueError(f"{what} has norm {norm:.4f}, must be unit")
+    return values

@@ -17,7 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from bimgraph.errors import FormatError
 from bimgraph.files import read_json, write_atomic
-from bimgraph.validation import parse_model
+from bimgraph.validation import parse_model, require_unit
 
 FORMAT = "bimgraph.planemap"
 VERSION = 1
@@ -26,7 +26,6 @@ Vec3 = tuple[float, float, float]
 
 # A hand-written map is accepted if its points lie this close to the face's plane.
 _ON_PLANE_TOL_M = 0.01
-_UNIT_TOL = 1e-3
 
 
 class Space(BaseModel):
@@ -65,10 +64,7 @@ class BimFace(BaseModel):
     @field_validator("normal")
     @classmethod
     def _unit(cls, normal):
-        norm = float(np.linalg.norm(normal))
-        if abs(norm - 1.0) > _UNIT_TOL:
-            raise ValueError(f"normal has length {norm:.4f}, must be a unit vector")
-        return normal
+        return require_unit(normal, "normal")
 
     @model_validator(mode="after")
     def _check_geometry(self):

@@ -17,7 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from bimgraph.errors import FormatError, InputError
 from bimgraph.files import read_json, write_atomic, write_json
 from bimgraph.geometry import pose_from_tum
-from bimgraph.validation import parse_model
+from bimgraph.validation import parse_model, require_unit
 
 FORMAT = "bimgraph.sequence"
 VERSION = 1
@@ -88,10 +88,7 @@ class PlaneObservation(BaseModel):
     @field_validator("n")
     @classmethod
     def _unit(cls, n):
-        norm = float(np.linalg.norm(n))
-        if abs(norm - 1.0) > 1e-3:
-            raise ValueError(f"normal has length {norm:.4f}, must be a unit vector")
-        return n
+        return require_unit(n, "normal")
 
     @field_validator("cov")
     @classmethod
@@ -121,9 +118,7 @@ class Keyframe(BaseModel):
     @field_validator("T_S_C")
     @classmethod
     def _unit_quaternion(cls, v):
-        qn = float(np.linalg.norm(v[3:]))
-        if abs(qn - 1.0) > 1e-3:
-            raise ValueError(f"quaternion has norm {qn:.4f}, must be unit")
+        require_unit(v[3:], "quaternion")
         return v
 
     @field_validator("cov")

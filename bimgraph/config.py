@@ -152,10 +152,16 @@ class DepthNoiseConfig(Section):
     dropout_probability: float = Field(0.01, ge=0, le=1, description="chance of a random hole at any pixel")
     grazing_start_deg: float = Field(70.0, ge=0, le=90, description="incidence angle (from the surface normal) where grazing dropouts begin")
     grazing_end_deg: float = Field(85.0, ge=0, le=90, description="incidence angle beyond which no return comes back (dropout chance rises linearly from start)")
+    scale_sigma: float = Field(0.003, ge=0, description="systematic part, drawn once per frame: relative depth scale error (0.003 = 3 mm per metre); 0 turns it off")
+    distortion_sigma_per_m: float = Field(0.0015, ge=0, description="systematic part, drawn once per frame: sigma of each coefficient of a smooth low-order field over the image (tilt, saddle, bowl terms, 1 at the image border) in depth error per squared metre of depth (0.0015 = 1.5 mm at 1 m, 6 mm at 2 m); 0 turns it off")
 
     def sigma(self, z):
-        """Standard deviation of the depth noise at depth z (metres, scalar or array)."""
+        """Standard deviation of the per-pixel depth noise at depth z (metres, scalar or array)."""
         return self.sigma_a_m + self.sigma_b_per_m * z * z
+
+    def without_systematic(self) -> "DepthNoiseConfig":
+        """The same sensor with only per-pixel noise (what the plane extractor's covariance models)."""
+        return self.model_copy(update={"scale_sigma": 0.0, "distortion_sigma_per_m": 0.0})
 
 
 class ExtractionConfig(Section):

@@ -5,7 +5,7 @@ For each model: walls, side-face sections, our seconds (`import_ifc`, end to end
 seconds of opening the file and iterating the walls' geometry with ifcopenshell's default
 settings (openings subtracted, the geometry whose faces we report) with the same thread
 count; the ratio ours / bare is the issue's goal (<= 1.2). The bare iteration without opening
-subtraction (the settings our import iterates with) is shown for reference. Best of
+subtraction (the settings our import iterates with) is shown for reference. Median of
 `--repeat` rounds, the three taking turns, after one warm-up run that loads the libraries.
 
 Usage: scripts/bench_bim.py [--threads N] [MODEL.ifc ...]
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import statistics
 import time
 from pathlib import Path
 
@@ -46,16 +47,16 @@ def bare_iteration(path: Path, subtract_openings: bool, threads: int) -> int:
     return count
 
 
-def best_of(repeat: int, **jobs) -> dict[str, float]:
-    """Best wall-clock seconds of each job over `repeat` rounds; the jobs take turns within a
-    round, so that a machine shared with others loads them alike."""
-    best = dict.fromkeys(jobs, float("inf"))
+def median_of(repeat: int, **jobs) -> dict[str, float]:
+    """Median wall-clock seconds of each job over `repeat` rounds; the jobs take turns within
+    a round, so that a machine shared with others loads them alike."""
+    seconds = {name: [] for name in jobs}
     for _ in range(repeat):
         for name, job in jobs.items():
             started = time.perf_counter()
             job()
-            best[name] = min(best[name], time.perf_counter() - started)
-    return best
+            seconds[name].append(time.perf_counter() - started)
+    return {name: statistics.median(values) for name, values in seconds.items()}
 
 
 def main():
@@ -69,13 +70,13 @@ def main():
     cfg = BimImportConfig(threads=args.threads)
     threads = cfg.threads or available_cores()
 
-    table = Table(title=f"BIM import against a bare geometry iteration ({threads} threads, best of {args.repeat})")
+    table = Table(title=f"BIM import against a bare geometry iteration ({threads} threads, median of {args.repeat})")
     for column in ("model", "walls", "faces", "ours s", "bare s", "ratio", "bare s, no subtraction"):
         table.add_column(column, justify="left" if column == "model" else "right")
     for path in models:
         plane_map, _ = import_ifc(path, cfg)  # warm-up
         walls = bare_iteration(path, True, threads)
-        seconds = best_of(args.repeat, ours=lambda: import_ifc(path, cfg),
+        seconds = median_of(args.repeat, ours=lambda: import_ifc(path, cfg),
                           bare=lambda: bare_iteration(path, True, threads),
                           bare_fast=lambda: bare_iteration(path, False, threads))
         ours, bare, bare_fast = seconds["ours"], seconds["bare"], seconds["bare_fast"]

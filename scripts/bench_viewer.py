@@ -69,7 +69,7 @@ def _run(seq: Sequence, plane_map: PlaneMap, cfg: Config, rrd: Path | None) -> d
         listener = _TimedListener(viewer, seq.root)
         setup_wall, setup_cpu = time.perf_counter() - wall, time.thread_time() - thread
         backend = Backend(plane_map, cfg.backend, initial, listener=listener)
-        for kf in listener.watch(seq.keyframes):
+        for kf in seq.keyframes:
             backend.process(kf)
         close_wall, close_cpu = time.perf_counter(), time.thread_time()
         viewer.close()

@@ -75,7 +75,7 @@ def record_online(scene, path, config=None):
                          T_B_C_truth=dict(enumerate(scene.T_B_C)), T_B_S_truth=scene.T_B_S, config=config)
     listener = RerunListener(viewer)
     backend = Backend(scene.plane_map, BackendConfig(), scene.initial, listener=listener)
-    results = [backend.process(kf) for kf in listener.watch(scene.keyframes)]
+    results = [backend.process(kf) for kf in scene.keyframes]
     return viewer, results
 
 
@@ -175,7 +175,7 @@ def test_offline_run_logs_every_keyframe(scene, tmp_path):
     path = tmp_path / "offline.rrd"
     viewer = RerunViewer(open_recording(path), scene.plane_map, scene.initial.T_B_S, camera=CAMERA)
     listener = RerunListener(viewer)
-    results = run_offline(list(listener.watch(scene.keyframes)), scene.plane_map, BackendConfig(), scene.initial,
+    results = run_offline(list(scene.keyframes), scene.plane_map, BackendConfig(), scene.initial,
                           listener=listener)
     viewer.close()
     verify(path)
@@ -183,13 +183,6 @@ def test_offline_run_logs_every_keyframe(scene, tmp_path):
     assert counts["/" + bp.CORRECTED]["LineStrips3D:strips"] == len(results.indices) - 1
     assert "/" + bp.TRUTH not in counts and f"/{bp.METRICS}/position_error_cm/corrected" not in counts
     assert f"/{bp.METRICS}/latency_ms/backend" not in counts  # offline has no per-keyframe latency
-
-
-def test_keyframe_without_watch_is_an_error(scene, tmp_path):
-    viewer = RerunViewer(open_recording(tmp_path / "x.rrd"), scene.plane_map, scene.initial.T_B_S)
-    backend = Backend(scene.plane_map, BackendConfig(), scene.initial, listener=RerunListener(viewer))
-    with pytest.raises(KeyError, match="watch"):
-        backend.process(scene.keyframes[0])
 
 
 def test_depth_images_are_logged_in_the_camera_view(scene, tmp_path):
@@ -208,7 +201,7 @@ def test_depth_images_are_logged_in_the_camera_view(scene, tmp_path):
     viewer = RerunViewer(open_recording(path, camera=camera), scene.plane_map, scene.initial.T_B_S, camera=camera)
     listener = RerunListener(viewer, tmp_path)
     backend = Backend(scene.plane_map, BackendConfig(), scene.initial, listener=listener)
-    for kf in listener.watch(keyframes):
+    for kf in keyframes:
         backend.process(kf)
     viewer.close()
     counts = row_counts(path)

@@ -3,6 +3,7 @@ backend's synthetic scene (plane map JSON, ground truth), read back with rerun's
 
 from __future__ import annotations
 
+import json
 import os
 
 import numpy as np
@@ -118,8 +119,15 @@ def test_view_replays_the_outputs(online_run, seq_dir):
     (online_run / JSON_FILE).unlink()
 
 
-def test_view_without_sequence_is_a_one_line_error(online_run):
+def test_view_finds_the_sequence_the_run_names(online_run):
     result = CliRunner().invoke(app, ["view", str(online_run), "--rrd", str(online_run / "x.rrd")])
+    assert result.exit_code == 0, result.output
+    verify(online_run / "x.rrd")
+    # A summary that names no sequence: one line asking for --sequence.
+    summary = json.loads((online_run / "summary.json").read_text())
+    del summary["sequence"]
+    (online_run / "summary.json").write_text(json.dumps(summary))
+    result = CliRunner().invoke(app, ["view", str(online_run), "--rrd", str(online_run / "y.rrd")])
     assert result.exit_code == 2
     assert "--sequence" in result.output and "Traceback" not in result.output
 

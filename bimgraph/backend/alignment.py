@@ -17,12 +17,11 @@ from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from bimgraph.backend.graph import E, L, X, FactorBuilder, cov_T_B_S, pose3, sigmas_cov
 from bimgraph.config import BackendConfig
 from bimgraph.errors import InputError
-from bimgraph.geometry import make_pose
+from bimgraph.geometry import least_rotation, make_pose, rotation_from_correlation
 
 _WEAK = 1e6  # variance factor of the prior in the directions the seeds observe
 
@@ -93,20 +92,10 @@ def unlocked_covariance(alignment: Alignment, directions: list[dict]) -> np.ndar
 def _rotation_from_normals(normals_S: np.ndarray, normals_B: np.ndarray, R_prior: np.ndarray) -> np.ndarray:
     """R_B_S with R n_S ~ n_B (Kabsch); with parallel normals, the prior turned by the least
     rotation that takes its prediction of the first normal onto the observed one."""
-    H = normals_S.T @ normals_B
-    U, s, Vt = np.linalg.svd(H)
-    if s[1] > 1e-6 * max(s[0], 1e-12):
-        D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-        return Vt.T @ D @ U.T
-    return _least_rotation(R_prior @ normals_S[0], normals_B[0]) @ R_prior
-
-
-def _least_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    axis = np.cross(a, b)
-    s, c = np.linalg.norm(axis), float(a @ b)
-    if s < 1e-12:
-        return np.eye(3)
-    return Rotation.from_rotvec(axis / s * np.arctan2(s, c)).as_matrix()
+    R = rotation_from_correlation(normals_S.T @ normals_B)
+    if R is not None:
+        return R
+    return least_rotation(R_prior @ normals_S[0], normals_B[0]) @ R_prior
 
 
 def align_from_seeds(planes_S: np.ndarray, planes_B: np.ndarray, cfg: BackendConfig,

@@ -152,7 +152,7 @@ class OfflineEstimator:
             self.listener.on_keyframe(KeyframeResult(
                 kf.index, kf.stamp, pose, T_B_S @ pose, T_B_S, cov,
                 [Association(i, landmark_of[(kf.index, i)], face_of[(kf.index, i)]) for i in range(len(kf.planes))],
-                float("nan")))
+                float("nan"), keyframe=kf))
         faces = sorted({lm.face for lm in self._active() if lm.face is not None})
         normals = self.faces.planes[[self.faces.row[f] for f in faces], :3] if faces else np.zeros((0, 3))
         return Results(mode="offline", indices=[kf.index for kf in keyframes], stamps=[kf.stamp for kf in keyframes],

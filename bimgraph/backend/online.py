@@ -101,7 +101,7 @@ class Backend:
         result = KeyframeResult(
             index=k, stamp=kf.stamp, T_S_C=T_S_C, T_B_C=T_B_S @ T_S_C, T_B_S=T_B_S, cov_T_B_S=cov,
             associations=[Association(obs.index, j, self._face_of(j, T_B_S)) for obs, j in zip(observations, observed)],
-            latency_s=time.perf_counter() - start, isam2_s=self.graph.update_seconds - isam2_before)
+            latency_s=time.perf_counter() - start, isam2_s=self.graph.update_seconds - isam2_before, keyframe=kf)
         self.listener.on_keyframe(result)
         return result
 

@@ -94,7 +94,10 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
     if mode not in ("online", "offline"):
         raise ConfigError(f"mode {mode!r}: expected online or offline")
     meta = load_meta(seq_dir)
-    plane_map = load_model(model_path(seq_dir, meta, bim), cfg)
+    model = model_path(seq_dir, meta, bim)
+    plane_map = load_model(model, cfg)
+    # Absolute, so that `bimgraph view OUTDIR` finds them from anywhere.
+    inputs = {"sequence": str(seq_dir.resolve()), "model": str(Path(model).resolve())}
     if not plane_map.faces:
         raise InputError("the BIM model has no wall faces")
     initial = initial_alignment(meta, cfg)
@@ -105,12 +108,12 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
             initial = seed_alignment(sequence.keyframes, plane_map, list(seeds), cfg, initial)
     if mode == "offline":
         results = run_offline(sequence.keyframes, plane_map, cfg.backend, initial, listener, truth)
-        write_results(out_dir, results)
+        write_results(out_dir, results, inputs)
         return results
 
     keyframes = sequence.keyframes if seeds else iter_keyframes(seq_dir)
     backend = Backend(plane_map, cfg.backend, initial, listener, truth)
-    writer = OnlineWriter(out_dir, cfg.backend.write_every)
+    writer = OnlineWriter(out_dir, cfg.backend.write_every, inputs)
     start = time.perf_counter()
     try:
         for n, kf in enumerate(keyframes, start=1):

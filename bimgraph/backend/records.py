@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bimgraph.backend.landmarks import Landmark
+from bimgraph.sequence.format import Keyframe
 
 
 @dataclass
@@ -31,6 +32,7 @@ class KeyframeResult:
     associations: list[Association]
     latency_s: float
     isam2_s: float = 0.0  # of the latency, the part spent in iSAM2 updates
+    keyframe: Keyframe | None = None  # the input, so that a listener sees planes and images too
 
 
 @dataclass

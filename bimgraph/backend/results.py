@@ -77,8 +77,8 @@ def landmarks_record(landmarks: list[Landmark], T_B_S: np.ndarray) -> dict:
 
 
 def summary_record(mode: str, timings: dict, latencies_s: list[float], n_keyframes: int, landmarks: list[Landmark],
-                   finished: bool, rounds: int = 0) -> dict:
-    summary = {"mode": mode, "finished": finished, "keyframes": n_keyframes, "landmarks": len(landmarks),
+                   finished: bool, rounds: int = 0, inputs: dict | None = None) -> dict:
+    summary = {"mode": mode, "finished": finished, **(inputs or {}), "keyframes": n_keyframes, "landmarks": len(landmarks),
                "matched_landmarks": sum(lm.face is not None for lm in landmarks),
                "matched_faces": len({lm.face for lm in landmarks if lm.face is not None}),
                "timings_s": {k: round(v, 6) for k, v in timings.items()}}
@@ -109,7 +109,8 @@ class TumAppender:
 class OnlineWriter:
     """Writes an online run's outputs incrementally (see the module docstring)."""
 
-    def __init__(self, out_dir: Path, write_every: int):
+    def __init__(self, out_dir: Path, write_every: int, inputs: dict | None = None):
+        self.inputs = inputs
         self.out = Path(out_dir)
         self.out.mkdir(parents=True, exist_ok=True)
         self.write_every = write_every
@@ -136,14 +137,14 @@ class OnlineWriter:
         write_json(self.out / ASSOCIATIONS, associations_record(landmarks))
         write_json(self.out / LANDMARKS, landmarks_record(landmarks, self.last.T_B_S))
         write_json(self.out / SUMMARY, summary_record("online", timings or {}, self.latencies, len(self.latencies),
-                                                      landmarks, finished))
+                                                      landmarks, finished, inputs=self.inputs))
 
     def close(self) -> None:
         self.bim.close()
         self.slam.close()
 
 
-def write_results(out_dir: Path, results: Results) -> None:
+def write_results(out_dir: Path, results: Results, inputs: dict | None = None) -> None:
     """All outputs of a finished run at once (offline runs)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -153,4 +154,4 @@ def write_results(out_dir: Path, results: Results) -> None:
     write_json(out / ASSOCIATIONS, associations_record(results.landmarks))
     write_json(out / LANDMARKS, landmarks_record(results.landmarks, results.T_B_S))
     write_json(out / SUMMARY, summary_record(results.mode, results.timings, [], len(results.stamps), results.landmarks,
-                                             True, results.rounds))
+                                             True, results.rounds, inputs))

@@ -12,6 +12,7 @@ round changes nothing.
 
 from __future__ import annotations
 
+import functools
 import time
 from collections import Counter
 
@@ -139,6 +140,12 @@ class OfflineEstimator:
         return merged
 
     def _results(self, keyframes, values, marginals, timings, rounds) -> Results:
+        from bimgraph.deviations.graph import joint_covariance, observed_planes
+
+        start = time.perf_counter()
+        planes = observed_planes(self._active(), values, functools.partial(joint_covariance, marginals),
+                                 {lm.id: self._bim_factor(lm) for lm in self._active() if lm.face is not None})
+        timings["deviation_covariances_s"] = time.perf_counter() - start
         T_S_B = values.atPose3(E)
         T_B_S = T_S_B.inverse().matrix()
         cov = cov_T_B_S(T_S_B, marginals.marginalCovariance(E)) + self.online.locked_cov
@@ -158,7 +165,7 @@ class OfflineEstimator:
         return Results(mode="offline", indices=[kf.index for kf in keyframes], stamps=[kf.stamp for kf in keyframes],
                        T_S_C=T_S_C, T_B_C=[T_B_S @ p for p in T_S_C], T_B_S=T_B_S, cov_T_B_S=cov,
                        unobservable=unobservable_directions(normals, self.cfg.unobservable_min_angle_deg),
-                       landmarks=self._active(), timings=timings, rounds=rounds)
+                       landmarks=self._active(), timings=timings, rounds=rounds, observed_planes=planes)
 
     def _refresh(self, values: gtsam.Values) -> None:
         for lm in self._active():

@@ -16,6 +16,8 @@ from bimgraph.backend.records import Listener, Results
 from bimgraph.backend.results import OnlineWriter, write_results
 from bimgraph.bim.planemap import PlaneMap, load_plane_map
 from bimgraph.config import Config
+from bimgraph.deviations.graph import observed_planes_isam2
+from bimgraph.deviations.outputs import write_deviation_outputs
 from bimgraph.errors import ConfigError, InputError
 from bimgraph.geometry import normalise_plane, plane_from_frame, pose_from_tum
 from bimgraph.sequence.format import Keyframe, SequenceMeta, iter_keyframes, load_meta, load_sequence
@@ -109,6 +111,8 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
     if mode == "offline":
         results = run_offline(sequence.keyframes, plane_map, cfg.backend, initial, listener, truth)
         write_results(out_dir, results, inputs)
+        write_deviation_outputs(out_dir, plane_map, results.observed_planes, results.T_B_S, results.T_B_C, meta.camera,
+                                cfg.deviations)
         return results
 
     keyframes = sequence.keyframes if seeds else iter_keyframes(seq_dir)
@@ -126,4 +130,6 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
         raise
     writer.snapshot(backend, finished=True, timings={"total_s": time.perf_counter() - start})
     writer.close()
+    write_deviation_outputs(out_dir, plane_map, observed_planes_isam2(backend.graph, backend.landmarks.items),
+                            writer.last.T_B_S, writer.T_B_C, meta.camera, cfg.deviations)
     return None

@@ -51,6 +51,9 @@ class Results:
     landmarks: list[Landmark]
     timings: dict = field(default_factory=dict)
     rounds: int = 0
+    # Every landmark with its joint covariance with E and its anchor, for the deviation step
+    # (`bimgraph.deviations.estimate.ObservedPlane`).
+    observed_planes: list = field(default_factory=list)
 
     def associations(self) -> dict[tuple[int, int], str]:
         """(keyframe index, observation index) -> face id, for every matched landmark."""

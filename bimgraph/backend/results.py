@@ -117,12 +117,14 @@ class OnlineWriter:
         self.bim = TumAppender(self.out / TRAJECTORY_BIM)
         self.slam = TumAppender(self.out / TRAJECTORY_SLAM)
         self.latencies: list[float] = []
+        self.T_B_C: list[np.ndarray] = []
         self.last: KeyframeResult | None = None
 
     def keyframe(self, result: KeyframeResult, backend) -> None:
         self.bim.append(result.stamp, result.T_B_C)
         self.slam.append(result.stamp, result.T_S_C)
         self.latencies.append(result.latency_s)
+        self.T_B_C.append(result.T_B_C)
         self.last = result
         if len(self.latencies) % self.write_every == 0:
             self.snapshot(backend, finished=False)

@@ -92,3 +92,32 @@ def least_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     if s < 1e-12:
         return np.eye(3)
     return Rotation.from_rotvec(axis / s * np.arctan2(s, c)).as_matrix()
+
+
+def plane_basis(normal: np.ndarray) -> np.ndarray:
+    """3 x 2: two orthonormal in-plane directions; for a vertical plane the first is
+    horizontal and the second points up. (Not gtsam's Unit3 basis: use that one for tangent
+    spaces and covariances.)"""
+    nx, ny, nz = (float(v) for v in normal)
+    # Written out: np.cross costs more than the rest of the per-detection work.
+    u = np.array([-ny, nx, 0.0]) if abs(nz) < 0.9 else np.array([-nz, 0.0, nx])
+    u /= np.sqrt(u @ u)
+    v = np.array([ny * u[2] - nz * u[1], nz * u[0] - nx * u[2], nx * u[1] - ny * u[0]])
+    return np.column_stack([u, v])
+
+
+def plane_frame(plane: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(origin, basis) of the plane's own 2-D frame: p = origin + basis @ xy, the origin
+    being the plane's foot point."""
+    plane = np.asarray(plane, dtype=float)
+    return -plane[3] * plane[:3], plane_basis(plane[:3])
+
+
+def plane_shape(plane: np.ndarray, polygon, holes=()):
+    """A planar 3-D polygon with holes as a shapely Polygon in the plane's 2-D frame
+    (`plane_frame`); `buffer(0)` repairs holes that touch the outline (doors at floor level)."""
+    import shapely
+
+    origin, basis = plane_frame(plane)
+    return shapely.Polygon((np.asarray(polygon, dtype=float) - origin) @ basis,
+                           [(np.asarray(h, dtype=float) - origin) @ basis for h in holes]).buffer(0)

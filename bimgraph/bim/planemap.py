@@ -17,6 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from bimgraph.errors import FormatError
 from bimgraph.files import read_json, write_atomic
+from bimgraph.geometry import plane_frame, plane_shape
 from bimgraph.validation import parse_model, require_unit
 
 FORMAT = "bimgraph.planemap"
@@ -126,32 +127,14 @@ class PlaneMap(BaseModel):
 
 
 def polygon_area_centre(polygon, holes, normal) -> tuple[float, np.ndarray]:
-    """Area and centroid of a planar polygon with holes in 3-D (signed-area formula in the
-    polygon's own 2-D frame, so it holds for any orientation)."""
+    """Area and centroid of a planar polygon with holes in 3-D."""
     normal = np.asarray(normal, dtype=float)
-    u = np.cross(normal, [0.0, 0.0, 1.0] if abs(normal[2]) < 0.9 else [1.0, 0.0, 0.0])
-    u /= np.linalg.norm(u)
-    v = np.cross(normal, u)
-    origin = np.asarray(polygon[0], dtype=float)
-
-    def ring_moments(ring):
-        p = (np.asarray(ring, dtype=float) - origin) @ np.stack([u, v], axis=1)
-        x, y = p[:, 0], p[:, 1]
-        xn, yn = np.roll(x, -1), np.roll(y, -1)
-        cross = x * yn - xn * y
-        a = cross.sum() / 2.0
-        c = np.array([((x + xn) * cross).sum(), ((y + yn) * cross).sum()]) / 6.0
-        return abs(a), c * np.sign(a) if a != 0 else c
-
-    area, moment = ring_moments(polygon)
-    for hole in holes:
-        a_h, m_h = ring_moments(hole)
-        area -= a_h
-        moment = moment - m_h
-    if area <= 0:
-        return 0.0, origin
-    c2 = moment / area
-    return float(area), origin + c2[0] * u + c2[1] * v
+    plane = np.array([*normal, -normal @ np.asarray(polygon[0], dtype=float)])
+    shape = plane_shape(plane, polygon, holes)
+    if shape.area <= 0:
+        return 0.0, np.asarray(polygon[0], dtype=float)
+    origin, basis = plane_frame(plane)
+    return float(shape.area), origin + basis @ np.array(shape.centroid.coords[0])
 
 
 def load_plane_map(path: Path) -> PlaneMap:

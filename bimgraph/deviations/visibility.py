@@ -12,13 +12,13 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-import gtsam
 import numpy as np
 import open3d as o3d
 import shapely
 
 from bimgraph.bim.planemap import BimFace, PlaneMap
 from bimgraph.config import DeviationConfig
+from bimgraph.geometry import plane_frame, plane_shape
 from bimgraph.viewer.meshes import face_mesh
 
 # Samples sit this far in front of their face, so that the ray to one never stops on the face
@@ -28,12 +28,9 @@ _LIFT_M = 0.02
 
 def face_shape(face: BimFace) -> tuple[shapely.Polygon, np.ndarray, np.ndarray]:
     """The face's outline minus its holes in its plane's 2-D frame, with the frame's origin
-    (the plane's foot point) and 3 x 2 basis (gtsam's Unit3 basis): p = origin + basis @ xy."""
-    origin = -face.offset * np.asarray(face.normal, dtype=float)
-    basis = gtsam.Unit3(np.asarray(face.normal, dtype=float)).basis()
-    ring = (np.asarray(face.polygon) - origin) @ basis
-    holes = [(np.asarray(h) - origin) @ basis for h in face.holes]
-    return shapely.Polygon(ring, holes).buffer(0), origin, basis
+    (the plane's foot point) and 3 x 2 basis: p = origin + basis @ xy."""
+    origin, basis = plane_frame(face.plane)
+    return plane_shape(face.plane, face.polygon, face.holes), origin, basis
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,7 @@ from shapely.geometry import Polygon
 from bimgraph.bim.planemap import BimFace, PlaneMap
 from bimgraph.config import AsBuiltConfig
 from bimgraph.errors import InputError
+from bimgraph.geometry import plane_basis, plane_frame, plane_shape
 
 UP = np.array([0.0, 0.0, 1.0])
 GROUND_MARGIN_M = 10.0
@@ -42,13 +43,12 @@ class Element:
     @cached_property
     def frame(self) -> tuple[np.ndarray, np.ndarray]:
         """(origin, basis) of the plane's 2-D frame: p = origin + basis @ xy."""
-        return -self.plane[3] * self.plane[:3], plane_basis(self.plane[:3])
+        return plane_frame(self.plane)
 
     @cached_property
     def shape(self) -> Polygon:
         """The outline (with holes) in the plane's 2-D frame."""
-        origin, basis = self.frame
-        return Polygon((self.polygon - origin) @ basis, [(h - origin) @ basis for h in self.holes]).buffer(0)
+        return plane_shape(self.plane, self.polygon, self.holes)
 
 
 @dataclass
@@ -84,17 +84,6 @@ class Storey:
     ceiling_z: float
     faces: list[BimFace]
     floors: list[BimFace] = field(default_factory=list)  # slab tops at floor height, if imported
-
-
-def plane_basis(normal: np.ndarray) -> np.ndarray:
-    """3 x 2: two orthonormal in-plane directions; for a vertical plane the first is
-    horizontal and the second points up."""
-    nx, ny, nz = (float(v) for v in normal)
-    # Written out: np.cross costs more than the rest of the per-detection work.
-    u = np.array([-ny, nx, 0.0]) if abs(nz) < 0.9 else np.array([-nz, 0.0, nx])
-    u /= np.sqrt(u @ u)
-    v = np.array([ny * u[2] - nz * u[1], nz * u[0] - nx * u[2], nx * u[1] - ny * u[0]])
-    return np.column_stack([u, v])
 
 
 def pick_storey(plane_map: PlaneMap, name: str = "") -> Storey:

@@ -298,3 +298,24 @@ def test_internal_layer_faces_are_not_faces(tmp_path):
     faces = [f for f in plane_map.faces if f.wall_name == "W0"]
     assert sorted(f.offset for f in faces) == pytest.approx([-T / 2, -T / 2])  # x = -0.15 and x = 0.15
     assert sum(f.area for f in faces) == pytest.approx(2 * (6 - T) * H)
+
+
+def test_components_agree_with_scipy():
+    """faces._components is a fast path for small meshes; it must partition as scipy does,
+    long chains (which fall back to scipy) included."""
+    import scipy.sparse
+    import scipy.sparse.csgraph
+
+    from bimgraph.bim.faces import _components
+
+    rng = np.random.default_rng(0)
+    graphs = [(n, rng.integers(0, n, size=(rng.integers(0, 2 * n), 2))) for n in rng.integers(1, 60, size=300)]
+    graphs.append((500, np.stack([np.arange(499), np.arange(1, 500)], axis=1)))  # one long chain
+    for n, edges in graphs:
+        i, j = edges[:, 0], edges[:, 1]
+        count, labels = _components(n, i, j)
+        expected_count, expected = scipy.sparse.csgraph.connected_components(
+            scipy.sparse.coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n)), directed=False)
+        assert count == expected_count
+        # Same partition up to numbering: the pairs of labels are one-to-one.
+        assert len(set(zip(labels, expected))) == count

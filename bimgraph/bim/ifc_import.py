@@ -39,7 +39,9 @@ def import_ifc(path, cfg: BimImportConfig, log=None):
     if not walls:
         raise InputError(f"{path}: the model has no walls (IfcWall)")
     reader = ModelReader(model, cfg.threads)
-    meshes = reader.meshes(walls)
+    voids = {wall.id(): [rel.RelatedOpeningElement for rel in wall.HasOpenings] for wall in walls}
+    spaces = model.by_type("IfcSpace")
+    meshes, solids = reader.meshes_and_solids(walls, [o for os in voids.values() for o in os] + list(spaces))
     skipped = [w for w in walls if w.id() not in meshes]
     for wall in skipped:
         log(f"warning: wall {wall.GlobalId} ({wall.Name}): no geometry, skipped")
@@ -47,8 +49,8 @@ def import_ifc(path, cfg: BimImportConfig, log=None):
     for wall in curtain_walls:
         log(f"warning: curtain wall {wall.GlobalId} ({wall.Name}): not imported")
 
-    wall_faces = _wall_faces(reader, [w for w in walls if w.id() in meshes], meshes, cfg, log)
-    sections = _split_per_room(reader, wall_faces, meshes, cfg)
+    wall_faces = _wall_faces(reader, [w for w in walls if w.id() in meshes], meshes, voids, solids, cfg, log)
+    sections = _split_per_room(reader, wall_faces, meshes, spaces, solids, cfg)
     if not sections:
         raise InputError(f"{path}: no wall face of at least {cfg.min_face_area_m2} m2")
     if cfg.include_slabs:
@@ -59,8 +61,9 @@ def import_ifc(path, cfg: BimImportConfig, log=None):
     return plane_map, _report(path, walls, skipped, curtain_walls, wall_faces, sections, seconds)
 
 
-def _wall_faces(reader: ModelReader, walls, meshes, cfg, log) -> list[tuple[object, F.Face, float]]:
-    """[(wall, face, depth behind the face)] for every side face, openings cut out."""
+def _wall_faces(reader: ModelReader, walls, meshes, voids, solids, cfg, log) -> list[tuple[object, F.Face, float]]:
+    """[(wall, face, depth behind the face)] for every side face, openings cut out (`voids`:
+    wall id -> its openings, `solids`: their meshes by id)."""
     angle_tol = np.radians(cfg.coplanar_angle_deg)
     per_wall = {}
     for wall in walls:
@@ -70,14 +73,12 @@ def _wall_faces(reader: ModelReader, walls, meshes, cfg, log) -> list[tuple[obje
                                  cfg.coplanar_distance_m, cfg.grid_m, axes, np.radians(cfg.axis_tol_deg))
         sides = [(face, F.depth_behind(face, found, angle_tol)) for face in found]
         per_wall[wall.id()] = (wall, sides)
-    voids = {wall.id(): [rel.RelatedOpeningElement for rel in wall.HasOpenings] for wall in walls}
-    opening_meshes = reader.solid_meshes([o for os in voids.values() for o in os])
-    for opening in (o for os in voids.values() for o in os if o.id() not in opening_meshes):
+    for opening in (o for wall in walls for o in voids[wall.id()] if o.id() not in solids):
         log(f"warning: opening {opening.GlobalId} has no geometry; its wall keeps the area")
 
     out = []
     for wall, sides in per_wall.values():
-        openings = [m for o in voids[wall.id()] for m in opening_meshes.get(o.id(), [])]
+        openings = [m for o in voids[wall.id()] for m in solids.get(o.id(), [])]
         for face, depth in sides:
             holes = [F.plane_section(o.V, o.T, face, cfg.opening_slice_depth_m) for o in openings]
             holes = [h for h in holes if not h.is_empty]
@@ -88,13 +89,13 @@ def _wall_faces(reader: ModelReader, walls, meshes, cfg, log) -> list[tuple[obje
     return out
 
 
-def _split_per_room(reader: ModelReader, wall_faces, meshes, cfg) -> list[BimFace]:
-    spaces = reader.model.by_type("IfcSpace")
+def _split_per_room(reader: ModelReader, wall_faces, meshes, spaces, solids, cfg) -> list[BimFace]:
+    """Sections of the wall faces per room (`spaces`, with their meshes in `solids`)."""
     names = {s.GlobalId: " ".join(n for n in (s.Name, s.LongName) if n) for s in spaces}
     guids = {s.id(): s.GlobalId for s in spaces}
-    rooms = Rooms({guids[i]: meshes for i, meshes in reader.solid_meshes(spaces).items()})
+    rooms = Rooms({guids[i]: meshes for i, meshes in solids.items() if i in guids})
     boundaries = {}
-    for b in reader.boundaries({wall.GlobalId for wall, _, _ in wall_faces}):
+    for b in reader.boundaries([wall for wall, _, _ in wall_faces]):
         boundaries.setdefault(b.wall_guid, []).append(b)
 
     junctions = None if spaces else Junctions({wall.GlobalId: meshes[wall.id()] for wall, _, _ in wall_faces})
@@ -138,20 +139,26 @@ def _sections(reader, element, face: F.Face, region, cfg, counter: Counter, **fi
     """One BimFace per polygon of `region` (in `face`'s frame) of at least the minimum area;
     `counter` numbers them per element."""
     storey, elevation = reader.storey(element)
+    guid, name = element.GlobalId, element.Name or ""
     out = []
     for polygon in F.polygons(region):
         if polygon.area < cfg.min_face_area_m2:
             continue
         polygon = polygon.simplify(cfg.grid_m)  # corners only: no vertices along straight edges
-        k = counter[element.GlobalId]
-        counter[element.GlobalId] += 1
+        k = counter[guid]
+        counter[guid] += 1
         out.append(BimFace(
-            id=f"{element.GlobalId}/{k}", wall_guid=element.GlobalId, wall_name=element.Name or "",
+            id=f"{guid}/{k}", wall_guid=guid, wall_name=name,
             storey=storey, elevation=elevation, normal=tuple(face.normal), offset=face.offset,
-            polygon=[tuple(p) for p in face.to_3d(np.asarray(polygon.exterior.coords)[:-1])],
-            holes=[[tuple(p) for p in face.to_3d(np.asarray(r.coords)[:-1])] for r in polygon.interiors],
-            area=polygon.area, centre=tuple(face.to_3d(np.asarray(polygon.centroid.coords))[0]), **fields))
+            polygon=_points_3d(face, polygon.exterior), holes=[_points_3d(face, r) for r in polygon.interiors],
+            area=polygon.area, centre=tuple(face.to_3d(np.asarray(polygon.centroid.coords))[0].tolist()), **fields))
     return out
+
+
+def _points_3d(face: F.Face, ring) -> list[tuple]:
+    """A closed ring of the face frame as its points in B, without the closing repeat; plain
+    floats, which the plane map validates faster than numpy's."""
+    return [tuple(p) for p in face.to_3d(shapely.get_coordinates(ring)[:-1]).tolist()]
 
 
 def _report(path, walls, skipped, curtain_walls, wall_faces, sections, seconds):

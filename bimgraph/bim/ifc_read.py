@@ -8,8 +8,9 @@ small. Every matrix below is rigid; file units are scaled to metres once, at the
 
 from __future__ import annotations
 
+import functools
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import ifcopenshell
@@ -21,6 +22,7 @@ import ifcopenshell.util.unit
 import numpy as np
 import shapely
 
+from bimgraph.bim.faces import loop_normal
 from bimgraph.errors import InputError
 from bimgraph.geometry import inverse
 
@@ -36,11 +38,16 @@ class Mesh:
 
 @dataclass
 class Boundary:
-    """A space boundary's surface: `points` (N x 3, in B) of its outer loop."""
+    """A space boundary's surface: `points` (N x 3, in B) of its outer loop, `normal` its
+    unit normal (None if degenerate), computed once for all the faces of its wall."""
 
     space_guid: str
     wall_guid: str
     points: np.ndarray
+    normal: np.ndarray | None = field(init=False)
+
+    def __post_init__(self):
+        self.normal = loop_normal(self.points)
 
 
 def open_model(path) -> ifcopenshell.file:
@@ -70,6 +77,7 @@ class ModelReader:
         self.model = model
         self.threads = threads
         self.scale = ifcopenshell.util.unit.calculate_unit_scale(model)  # metres per file unit
+        _a2p.cache_clear()  # one model's placements at a time: each import starts cold, as a new process would
         self._placements = {}
         buildings = model.by_type("IfcBuilding")
         self.T_W_B = self.placement(buildings[0]) if buildings and buildings[0].ObjectPlacement else np.eye(4)
@@ -96,7 +104,7 @@ class ModelReader:
             if not placement.is_a("IfcLocalPlacement"):  # grid or linear placements
                 T = self.to_metres(ifcopenshell.util.placement.get_local_placement(placement))
             else:
-                T = self.to_metres(ifcopenshell.util.placement.get_axis2placement(placement.RelativePlacement))
+                T = self.to_metres(_axis2placement(placement.RelativePlacement))
                 if placement.PlacementRelTo is not None:
                     T = self._local_placement(placement.PlacementRelTo) @ T
             self._placements[key] = T
@@ -125,15 +133,16 @@ class ModelReader:
 
     def storey(self, element) -> tuple[str, float]:
         """Name and elevation in B of the storey containing `element` ("" and 0 if none)."""
-        container = ifcopenshell.util.element.get_container(element)
-        while container is not None and not container.is_a("IfcBuildingStorey"):
-            container = ifcopenshell.util.element.get_aggregate(container)
-        if container is None:
-            return "", 0.0
-        if container.id() not in self._storeys:
-            elevation = float((self.T_B_W @ self.placement(container))[2, 3])
-            self._storeys[container.id()] = (container.Name or "", elevation)
-        return self._storeys[container.id()]
+        if element.id() not in self._storeys:
+            container = ifcopenshell.util.element.get_container(element)
+            while container is not None and not container.is_a("IfcBuildingStorey"):
+                container = ifcopenshell.util.element.get_aggregate(container)
+            if container is None:
+                self._storeys[element.id()] = ("", 0.0)
+            else:
+                elevation = float((self.T_B_W @ self.placement(container))[2, 3])
+                self._storeys[element.id()] = (container.Name or "", elevation)
+        return self._storeys[element.id()]
 
     def axis_directions(self, wall, T_B_E: np.ndarray) -> list[np.ndarray]:
         """Horizontal unit directions in B of the segments of a wall's axis representation
@@ -152,29 +161,36 @@ class ModelReader:
             return list(directions[norms > 1e-9] / norms[norms > 1e-9, None])
         return []
 
-    def solid_meshes(self, elements) -> dict[int, list[Mesh]]:
-        """Closed meshes in B of `elements` by entity id: built here, exactly and cheaply, for
-        bodies that are extrusions of polygons or faceted breps (openings and rooms nearly
-        always are), by the geometry iterator for the others. Elements without geometry are absent."""
-        out, others = {}, []
-        for element in elements:
-            solids = _body_items(element)
-            prisms = [_prism(item) if item.is_a("IfcExtrudedAreaSolid") else _brep(item) for item in solids]
-            if not solids or any(p is None for p in prisms):
+    def meshes_and_solids(self, elements, solids) -> tuple[dict[int, Mesh], dict[int, list[Mesh]]]:
+        """`meshes(elements)`, and closed meshes in B of `solids` by entity id: built here,
+        exactly and cheaply, for bodies that are extrusions of polygons or faceted breps
+        (openings and rooms nearly always are), by the geometry iterator for the others, in
+        the same run as `elements` (setting the iterator up costs as much as a dozen walls).
+        Solids without geometry are absent; those built here come first, each part in the
+        order of `solids`."""
+        built, others = {}, []
+        for element in solids:
+            items = _body_items(element)
+            prisms = [_prism(item) if item.is_a("IfcExtrudedAreaSolid") else _brep(item) for item in items]
+            if not items or any(p is None for p in prisms):
                 others.append(element)
                 continue
             T_B_E = self.T_B_W @ self.placement(element)
-            out[element.id()] = [Mesh((V * self.scale) @ T_B_E[:3, :3].T + T_B_E[:3, 3], T) for V, T in prisms]
-        out.update({i: [mesh] for i, mesh in self.meshes(others).items()})
-        return out
+            built[element.id()] = [Mesh((V * self.scale) @ T_B_E[:3, :3].T + T_B_E[:3, 3], T) for V, T in prisms]
+        meshes = self.meshes([*elements, *others])
+        built.update({e.id(): [meshes.pop(e.id())] for e in others if e.id() in meshes})
+        return meshes, built
 
-    def boundaries(self, wall_guids: set[str]) -> list[Boundary]:
+    def boundaries(self, walls) -> list[Boundary]:
         """Surface space boundaries on the given walls, as point loops in B."""
+        wall_ids = {wall.id() for wall in walls}
         out = []
         for rel in self.model.by_type("IfcRelSpaceBoundary"):
-            wall, space = rel.RelatedBuildingElement, rel.RelatingSpace
-            geometry = rel.ConnectionGeometry
-            if wall is None or wall.GlobalId not in wall_guids or space is None or not space.is_a("IfcSpace"):
+            wall = rel.RelatedBuildingElement
+            if wall is None or wall.id() not in wall_ids:  # most are on slabs, doors, windows
+                continue
+            space, geometry = rel.RelatingSpace, rel.ConnectionGeometry
+            if space is None or not space.is_a("IfcSpace"):
                 continue
             if geometry is None or not geometry.is_a("IfcConnectionSurfaceGeometry"):
                 continue
@@ -190,6 +206,26 @@ class ModelReader:
 def available_cores() -> int:
     """The cores this process may run on (the geometry iterator's default thread count)."""
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def _axis2placement(placement) -> np.ndarray:
+    """ifcopenshell's get_axis2placement (read-only), computed once per distinct value: the
+    items of a model repeat most of them (Duplex: 79 values in 242 placements), and the
+    matrix costs ten times its key."""
+    location = placement.Location
+    if not placement.is_a("IfcAxis2Placement3D") or not location.is_a("IfcCartesianPoint"):
+        return ifcopenshell.util.placement.get_axis2placement(placement)
+    axis, ref = placement.Axis, placement.RefDirection
+    values = (location.Coordinates, axis.DirectionRatios if axis else None, ref.DirectionRatios if ref else None)
+    return _a2p(repr(values), *values)
+
+
+@functools.lru_cache(maxsize=4096)
+def _a2p(spelling: str, location: tuple, axis: tuple | None, ref: tuple | None) -> np.ndarray:
+    """`spelling`, the values' repr, keeps -0.0 and 0.0 apart, which tuple equality does not."""
+    M = ifcopenshell.util.placement.a2p(location, np.array(axis or (0, 0, 1)), np.array(ref or (1, 0, 0)))
+    M.flags.writeable = False
+    return M
 
 
 def _body_items(element) -> list:
@@ -229,7 +265,7 @@ def _curve_points(curve) -> np.ndarray | None:
     """The vertices of a polyline-like curve (polyline, indexed poly curve of straight
     segments, composite of those), without the closing repeat; None for curved ones."""
     if curve.is_a("IfcPolyline"):
-        points = np.array([p.Coordinates for p in curve.Points], dtype=float)
+        points = _coordinates(curve.Points)
     elif curve.is_a("IfcIndexedPolyCurve"):
         if curve.Segments and any(not s.is_a("IfcLineIndex") for s in curve.Segments):
             return None
@@ -252,9 +288,16 @@ def _curve_points(curve) -> np.ndarray | None:
     keep = np.ones(len(points), dtype=bool)
     keep[1:] = np.linalg.norm(np.diff(points, axis=0), axis=1) > 1e-9  # repeated vertices
     points = points[keep]
-    if len(points) > 1 and np.allclose(points[0], points[-1]):
+    # np.allclose's test with its default tolerances, written out: allclose costs 50 us.
+    if len(points) > 1 and (np.abs(points[0] - points[-1]) <= 1e-8 + 1e-5 * np.abs(points[-1])).all():
         points = points[:-1]
     return points
+
+
+def _coordinates(points) -> np.ndarray:
+    """The coordinates of IfcCartesianPoints (N x 2 or 3): their only attribute, read by
+    index at a third of the cost of by name."""
+    return np.array([p[0] for p in points], dtype=float)
 
 
 def _prism(solid) -> tuple[np.ndarray, np.ndarray] | None:
@@ -271,15 +314,12 @@ def _prism(solid) -> tuple[np.ndarray, np.ndarray] | None:
     direction = direction / np.linalg.norm(direction) * solid.Depth
     bottom = np.column_stack([profile, np.zeros(n)])
     V = np.vstack([bottom, bottom + direction])
-    index = {tuple(p): i for i, p in enumerate(profile)}
-    caps = [[index[tuple(c)] for c in np.asarray(t.exterior.coords)[:3]]
-            for t in shapely.constrained_delaunay_triangles(polygon).geoms]
-    caps = np.array(caps, dtype=int)
+    caps = _triangulate(polygon, profile, np.arange(n))
     i = np.arange(n)
     j = (i + 1) % n
     T = np.vstack([caps, caps + n, np.column_stack([i, j, j + n]), np.column_stack([i, j + n, i + n])])
     if solid.Position is not None:
-        M = ifcopenshell.util.placement.get_axis2placement(solid.Position)
+        M = _axis2placement(solid.Position)
         V = V @ M[:3, :3].T + M[:3, 3]
     return V, T
 
@@ -289,10 +329,11 @@ def _brep(brep) -> tuple[np.ndarray, np.ndarray] | None:
     are polygons without holes; None otherwise."""
     loops = []
     for face in brep.Outer.CfsFaces:
-        if len(face.Bounds) != 1 or not face.Bounds[0].Bound.is_a("IfcPolyLoop"):
+        bounds = face.Bounds
+        if len(bounds) != 1 or not (bound := bounds[0].Bound).is_a("IfcPolyLoop"):
             return None
-        loop = np.array([p.Coordinates for p in face.Bounds[0].Bound.Polygon], dtype=float)
-        loops.append(loop if face.Bounds[0].Orientation else loop[::-1])
+        loop = _coordinates(bound.Polygon)
+        loops.append(loop if bounds[0].Orientation else loop[::-1])
     # Shared corners get one index, so that the faces' common edges are cut at one point.
     V, index = np.unique(np.concatenate(loops), axis=0, return_inverse=True)
     index = index.reshape(-1)
@@ -304,13 +345,20 @@ def _brep(brep) -> tuple[np.ndarray, np.ndarray] | None:
             triangles.append(ids[None, :])
             continue
         axes = np.linalg.svd(loop - loop.mean(axis=0))[2][:2]  # the loop's own plane
-        flat = shapely.Polygon(loop @ axes.T)
+        points = loop @ axes.T
+        flat = shapely.Polygon(points)
         if not flat.is_valid or flat.area <= 0:
             return None
-        lookup = {tuple(p): i for p, i in zip(loop @ axes.T, ids)}
-        triangles.append(np.array([[lookup[tuple(c)] for c in np.asarray(t.exterior.coords)[:3]]
-                                   for t in shapely.constrained_delaunay_triangles(flat).geoms]))
+        triangles.append(_triangulate(flat, points, ids))
     return V, np.concatenate(triangles)
+
+
+def _triangulate(polygon, points: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """The constrained Delaunay triangles of `polygon` (its vertices `points`, N x 2) as the
+    `ids` of their corners."""
+    lookup = {p: i for p, i in zip(map(tuple, points.tolist()), ids.tolist())}
+    corners = shapely.get_coordinates(shapely.constrained_delaunay_triangles(polygon)).reshape(-1, 4, 2)[:, :3]
+    return np.array([[lookup[tuple(c)] for c in triangle] for triangle in corners.tolist()], dtype=int)
 
 
 def _surface_points(surface) -> np.ndarray | None:
@@ -319,7 +367,7 @@ def _surface_points(surface) -> np.ndarray | None:
         loop = _curve_points(surface.OuterBoundary)
         if loop is None:
             return None
-        M = ifcopenshell.util.placement.get_axis2placement(surface.BasisSurface.Position)
+        M = _axis2placement(surface.BasisSurface.Position)
         return loop @ M[:3, :3].T + M[:3, 3]
     if surface.is_a("IfcSurfaceOfLinearExtrusion") and surface.SweptCurve.is_a("IfcArbitraryOpenProfileDef"):
         line = _curve_points(surface.SweptCurve.Curve)
@@ -328,6 +376,6 @@ def _surface_points(surface) -> np.ndarray | None:
         direction = np.asarray(surface.ExtrudedDirection.DirectionRatios, dtype=float)
         direction = direction / np.linalg.norm(direction) * surface.Depth
         loop = np.vstack([line, line[::-1] + direction])
-        M = ifcopenshell.util.placement.get_axis2placement(surface.Position)
+        M = _axis2placement(surface.Position)
         return loop @ M[:3, :3].T + M[:3, 3]
     return None

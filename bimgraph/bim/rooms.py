@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from bimgraph.bim.faces import Face, plane_section, polygons
+from bimgraph.bim.faces import Face, overlap_area, plane_section, polygons
 
 
 @dataclass
@@ -34,19 +34,25 @@ def boundary_claims(face: Face, depth: float, boundaries, on_face_tol: float, an
     the room's region just in front, from `Rooms.claims`)."""
     claims = []
     for boundary in boundaries:
-        points = boundary.points
-        distance = points @ face.normal + face.offset
-        normal = _loop_normal(points)
+        normal = boundary.normal
         if normal is None or abs(normal @ face.normal) < np.cos(angle_tol_rad):
             continue
-        region = shapely.union_all(polygons(shapely.make_valid(shapely.Polygon(face.to_2d(points)))))
+        distance = boundary.points @ face.normal + face.offset
         if np.abs(distance).max() <= on_face_tol:
-            claims.append(Claim(boundary.space_guid, "space_boundary", region))
+            claims.append(Claim(boundary.space_guid, "space_boundary", _region(face, boundary.points)))
         elif distance.max() <= on_face_tol and distance.min() >= -depth - on_face_tol:
             room = rooms_in_front.get(boundary.space_guid)
-            if room is not None and room.intersection(region).area > 0:
+            if room is None:  # the boundary of a room behind the wall
+                continue
+            region = _region(face, boundary.points)
+            if overlap_area(room, region) > 0:
                 claims.append(Claim(boundary.space_guid, "space_boundary_projected", region))
     return claims
+
+
+def _region(face: Face, points: np.ndarray):
+    """A boundary loop (points in B) as a region in the face frame."""
+    return shapely.union_all(polygons(shapely.make_valid(shapely.Polygon(face.to_2d(points)))))
 
 
 class Rooms:
@@ -122,7 +128,7 @@ def split_face(face: Face, claims: list[Claim], grid: float) -> list[tuple[objec
     if len({c.space_guid for c in claims}) == 1:  # one room in front: its parts of the face
         claimed = shapely.union_all([c.region for c in claims])
         parts = polygons(face.region)
-        reached = [p.intersection(claimed).area > grid for p in parts]
+        reached = [overlap_area(p, claimed) > grid for p in parts]
         out = []
         for group_reached in (True, False):
             group = [p for p, r in zip(parts, reached) if r == group_reached]
@@ -145,11 +151,14 @@ def split_face(face: Face, claims: list[Claim], grid: float) -> list[tuple[objec
             parts[claim.space_guid][0] = parts[claim.space_guid][0].union(piece, grid_size=grid)
         else:
             parts[claim.space_guid] = [piece, claim]
+    leftovers = polygons(remaining)
+    if not leftovers:
+        return [(region, claim) for region, claim in parts.values()]
     # Unclaimed area (a slab edge above two rooms) is cut where the sections' sides are, so
     # that each piece goes to the room it continues.
     cuts = np.unique([x for region, _ in parts.values() for p in polygons(region) for x in p.bounds[0::2]])
     pieces = []
-    for leftover in polygons(remaining):
+    for leftover in leftovers:
         u0, v0, u1, v1 = leftover.bounds
         inner = cuts[(cuts > u0 + grid) & (cuts < u1 - grid)]
         edges = [u0 - 1, *inner, u1 + 1]
@@ -162,7 +171,7 @@ def split_face(face: Face, claims: list[Claim], grid: float) -> list[tuple[objec
     for leftover in pieces:
         if leftover.area < grid * grid:
             continue  # a sliver left by rounding
-        shared = {guid: leftover.intersection(region).area for guid, region in grown.items()}
+        shared = {guid: overlap_area(leftover, region) for guid, region in grown.items()}
         best = max(shared, key=shared.get, default=None)
         if best is not None and shared[best] > 0:
             merged_pieces[best].append(leftover)
@@ -175,13 +184,3 @@ def split_face(face: Face, claims: list[Claim], grid: float) -> list[tuple[objec
     if unclaimed:
         out.append((shapely.union_all(unclaimed, grid_size=grid), None))
     return out
-
-
-def _loop_normal(points: np.ndarray) -> np.ndarray | None:
-    """Unit normal of a planar loop (Newell's method), None if degenerate."""
-    p, q = points, np.roll(points, -1, axis=0)
-    n = np.array([((p[:, 1] - q[:, 1]) * (p[:, 2] + q[:, 2])).sum(),
-                  ((p[:, 2] - q[:, 2]) * (p[:, 0] + q[:, 0])).sum(),
-                  ((p[:, 0] - q[:, 0]) * (p[:, 1] + q[:, 1])).sum()])
-    norm = np.linalg.norm(n)
-    return n / norm if norm > 1e-12 else None

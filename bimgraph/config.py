@@ -106,9 +106,12 @@ class ObserveConfig(Section):
     max_obliquity_deg: float = Field(75.0, gt=0, le=90, description="planes seen more obliquely than this are not detected")
     min_area_m2: float = Field(0.25, ge=0, description="smallest visible area of a detected plane")
     min_pixels: int = Field(1500, ge=1, description="smallest number of full-resolution pixels of a detected plane")
-    normal_sigma_deg: float = Field(0.6, ge=0, description="normal noise of a plane seen frontally at 1 m")
-    offset_sigma_m: float = Field(0.012, ge=0, description="offset noise of a plane seen frontally at 1 m")
-    small_area_m2: float = Field(1.0, gt=0, description="planes smaller than this are noisier, as sqrt(small_area / area), up to twice")
+    normal_sigma_deg: float = Field(0.24, ge=0, description="normal noise of a plane seen frontally at 1 m (calibrated against planes extracted from the depth sensor: scripts/bench_sim.py calibrate)")
+    normal_range_exponent: float = Field(0.95, description="normal noise grows as range^this (range in metres)")
+    normal_cos_exponent: float = Field(1.4, description="normal noise scales as cos(viewing angle)^this (the cosine floored at 0.25)")
+    offset_sigma_m: float = Field(0.0028, ge=0, description="offset noise of a plane seen frontally at 1 m (calibrated likewise)")
+    offset_range_exponent: float = Field(1.6, description="offset noise grows as range^this")
+    offset_cos_exponent: float = Field(0.9, description="offset noise scales as cos(viewing angle)^this")
     floors_and_ceilings: bool = Field(True, description="also detect floor and ceiling planes")
     oversegment_probability: float = Field(0.05, ge=0, le=1, description="chance that a detector splits a plane (twice the minimum area or more) into two detections")
 
@@ -153,15 +156,21 @@ class DepthNoiseConfig(Section):
     grazing_start_deg: float = Field(70.0, ge=0, le=90, description="incidence angle (from the surface normal) where grazing dropouts begin")
     grazing_end_deg: float = Field(85.0, ge=0, le=90, description="incidence angle beyond which no return comes back (dropout chance rises linearly from start)")
     scale_sigma: float = Field(0.003, ge=0, description="systematic part, drawn once per frame: relative depth scale error (0.003 = 3 mm per metre); 0 turns it off")
-    distortion_sigma_per_m: float = Field(0.0015, ge=0, description="systematic part, drawn once per frame: sigma of each coefficient of a smooth low-order field over the image (tilt, saddle, bowl terms, 1 at the image border) in depth error per squared metre of depth (0.0015 = 1.5 mm at 1 m, 6 mm at 2 m); 0 turns it off")
+    tilt_sigma_per_m: float = Field(0.002, ge=0, description="systematic part, drawn once per frame: sigma of each of two depth error terms linear across and down the image (1 at the image border), per squared metre of depth (0.002 = 2 mm at 1 m, 8 mm at 2 m); tilts fitted planes; 0 turns it off")
+    curvature_sigma_per_m: float = Field(0.0002, ge=0, description="systematic part, drawn once per frame: the same for three quadratic terms (saddle, astigmatism, bowl); bends planes, so plane extraction splits walls when it is large; 0 turns it off")
 
     def sigma(self, z):
         """Standard deviation of the per-pixel depth noise at depth z (metres, scalar or array)."""
         return self.sigma_a_m + self.sigma_b_per_m * z * z
 
+    def systematic_sigma(self, z):
+        """Standard deviation of the systematic depth error at depth z at the image corners,
+        where it is largest (there both tilt terms, the saddle and the bowl are 1)."""
+        return ((self.scale_sigma * z) ** 2 + 2 * z**4 * (self.tilt_sigma_per_m**2 + self.curvature_sigma_per_m**2)) ** 0.5
+
     def without_systematic(self) -> "DepthNoiseConfig":
         """The same sensor with only per-pixel noise (what the plane extractor's covariance models)."""
-        return self.model_copy(update={"scale_sigma": 0.0, "distortion_sigma_per_m": 0.0})
+        return self.model_copy(update={"scale_sigma": 0.0, "tilt_sigma_per_m": 0.0, "curvature_sigma_per_m": 0.0})
 
 
 class ExtractionConfig(Section):

@@ -83,8 +83,8 @@ def calibrate(args) -> None:
     stats = compare(errors, cfg.sim.observe, np.random.default_rng(args.seed), args.draws)
     noise = seq.meta.simulated.get("depth_noise") or {}
     print(f"{len(errors.range_m)} extracted planes matched to as-built surfaces (purity >= {PURITY}); depth noise: "
-          f"scale {noise.get('scale_sigma')}, distortion {noise.get('distortion_sigma_per_m')} /m; planes sensor: "
-          f"{cfg.sim.observe.normal_sigma_deg} deg, {100 * cfg.sim.observe.offset_sigma_m} cm at 1 m")
+          f"scale {noise.get('scale_sigma')}, tilt {noise.get('tilt_sigma_per_m')}, curvature {noise.get('curvature_sigma_per_m')} /m; planes sensor: "
+          f"{cfg.sim.observe.normal_sigma_deg:g} deg, {100 * cfg.sim.observe.offset_sigma_m:g} cm at 1 m")
     print("range m | n | normal deg median, p90: depth / planes (ratio) | offset cm median, p90: depth / planes (ratio)")
     for b in stats:
         r = b.ratios()

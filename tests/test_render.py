@@ -99,7 +99,8 @@ def ideal():
 
 def test_noise_statistics_match_the_model(ideal):
     depth, _, cos_inc = ideal
-    cfg = DepthNoiseConfig(dropout_probability=0.0, grazing_start_deg=89.0, grazing_end_deg=90.0)
+    # The per-pixel part alone: the systematic part is checked below.
+    cfg = DepthNoiseConfig(dropout_probability=0.0, grazing_start_deg=89.0, grazing_end_deg=90.0).without_systematic()
     noisy = add_depth_noise(depth, cfg, np.random.default_rng(0))
     both = (noisy > 0) & (depth > 0)
     assert both.mean() > 0.9
@@ -109,6 +110,31 @@ def test_noise_statistics_match_the_model(ideal):
     # Every value is a whole number of 16-bit PNG units.
     units = noisy / cfg.quantum_m
     assert np.abs(units - np.round(units)).max() < 1e-6
+
+
+def test_systematic_error_is_a_per_frame_scale_and_a_smooth_field_growing_as_z_squared():
+    """With the per-pixel part off, flat images at 1 m and 3 m noised from the same generator
+    state give err(z) = z s + z^2 f(u, v): s must be one number per frame, f a quadratic over
+    the image, and their spread over frames the configured one."""
+    cfg = DepthNoiseConfig(sigma_a_m=0.0, sigma_b_per_m=0.0, quantum_m=0.0, dropout_probability=0.0)
+    shape = (48, 64)
+    assert np.array_equal(add_depth_noise(np.full(shape, 2.0), cfg.without_systematic(), np.random.default_rng(0)), np.full(shape, 2.0))
+    y, x = np.meshgrid(np.linspace(-1, 1, shape[0]), np.linspace(-1, 1, shape[1]), indexing="ij")
+    quadratic = np.stack([np.ones_like(x), x, y, x * y, x * x, y * y], axis=-1).reshape(-1, 6)
+    scales, corners = [], []
+    for seed in range(400):
+        err1 = add_depth_noise(np.full(shape, 1.0), cfg, np.random.default_rng(seed)) - 1.0
+        err3 = add_depth_noise(np.full(shape, 3.0), cfg, np.random.default_rng(seed)) - 3.0
+        field = (err3 - 3 * err1) / 6
+        scale = err1 - field
+        assert np.ptp(scale) < 1e-12
+        coef = np.linalg.lstsq(quadratic, field.ravel(), rcond=None)[0]
+        assert np.abs(quadratic @ coef - field.ravel()).max() < 1e-12
+        scales.append(scale[0, 0])
+        corners.append(field[-1, -1])
+    assert np.std(scales) == pytest.approx(cfg.scale_sigma, rel=0.1)
+    # At 1 m the corner's error is scale and field: together the configured systematic sigma.
+    assert np.std(np.array(scales) + corners) == pytest.approx(cfg.systematic_sigma(1.0), rel=0.1)
 
 
 def test_holes_and_range_limits(ideal):

@@ -240,7 +240,8 @@ def test_rendered_depth_is_the_distance_to_the_as_built_face(tmp_path):
             z = -(plane[:3] @ T_B_C[:3, 3] + plane[3]) / (plane[:3] @ ray_B)
             assert depth[v, u] == pytest.approx(z, abs=2e-4)
             if noisy[v, u] > 0:
-                assert abs(noisy[v, u] - z) < 5 * Config().depth_noise.sigma(z) + 1e-3
+                noise = Config().depth_noise
+                assert abs(noisy[v, u] - z) < 5 * (noise.sigma(z) + noise.systematic_sigma(z)) + 1e-3
             checked += 1
     assert checked > 500
 

@@ -2,7 +2,7 @@
 
 Planes extracted from simulated depth are matched to the as-built element under most of
 their pixels (ground-truth labels) and their errors measured; for each of them the planes
-sensor draws a detection of the same true plane seen from the same range, angle and area.
+sensor draws detections of the same true plane seen from the same range and angle.
 The two error distributions (normal angle, offset), compared by range, say whether
 `ObserveConfig`'s noise matches what a plane fitted to the depth images gets.
 Pure computation: no files.
@@ -28,7 +28,6 @@ class PlaneErrors:
 
     range_m: np.ndarray  # distance of the plane's centre from the camera
     cos_view: np.ndarray  # cosine of the angle between the normal and the line of sight
-    area_m2: np.ndarray
     plane_C_true: np.ndarray  # N x 4, as-built plane in C
     normal_deg: np.ndarray  # extracted: angle to the true normal
     offset_m: np.ndarray  # extracted: d - true d
@@ -36,8 +35,8 @@ class PlaneErrors:
     def drawn(self, cfg: ObserveConfig, rng: np.random.Generator, draws: int) -> tuple[np.ndarray, np.ndarray]:
         """(normal angle deg, offset m) of `draws` planes-sensor detections of each row's view."""
         angles, offsets = [], []
-        for r, c, a, true_C in zip(self.range_m, self.cos_view, self.area_m2, self.plane_C_true):
-            sigma_n, sigma_d = plane_sigmas(r, c, a, cfg)
+        for r, c, true_C in zip(self.range_m, self.cos_view, self.plane_C_true):
+            sigma_n, sigma_d = plane_sigmas(r, c, cfg)
             for _ in range(draws):
                 noisy = perturb_plane(true_C, sigma_n, sigma_d, rng)
                 angles.append(normal_angle_deg(noisy[:3], true_C[:3]))
@@ -65,10 +64,10 @@ def match_errors(extractions: list[Extraction], truth_labels: list[np.ndarray], 
             if true_C[3] <= 0:
                 continue
             r = float(np.linalg.norm(plane.centre))
-            rows.append((r, abs(float(plane.n @ plane.centre)) / r, plane.area, *true_C,
+            rows.append((r, abs(float(plane.n @ plane.centre)) / r, *true_C,
                          normal_angle_deg(plane.n, true_C[:3]), plane.d - true_C[3]))
-    a = np.array(rows).reshape(-1, 9)
-    return PlaneErrors(a[:, 0], a[:, 1], a[:, 2], a[:, 3:7], a[:, 7], a[:, 8])
+    a = np.array(rows).reshape(-1, 8)
+    return PlaneErrors(a[:, 0], a[:, 1], a[:, 2:6], a[:, 6], a[:, 7])
 
 
 @dataclass

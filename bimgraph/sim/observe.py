@@ -3,9 +3,10 @@
 A coarse ray cast (every `stride_px` pixels of the camera image) finds which part of which
 element the camera sees within range. Each element seen on enough pixels and area becomes a
 detection: its as-built plane in C, perturbed in the tangent space of gtsam's OrientedPlane3
-by noise that grows with distance, obliquity and smallness (as a plane fitted to noisy depth
-does), with that noise as its covariance; its polygon is the visible part (the element's
-outline clipped to the hull of the pixels that see it), projected onto the noisy plane.
+by noise that grows with distance and shrinks with obliquity (as a plane fitted to the depth
+sensor's images does), with that noise as its covariance; its polygon is the visible part
+(the element's outline clipped to the hull of the pixels that see it), projected onto the
+noisy plane.
 Pure computation: no files.
 """
 
@@ -23,7 +24,7 @@ from bimgraph.sequence.format import Camera, PlaneObservation
 from bimgraph.sequence.groundtruth import rounded
 from bimgraph.sim.world import Element, plane_basis
 
-# Obliquity is capped here when scaling noise, so that grazing views stay finite.
+# Obliquity is capped here when scaling noise, so that grazing views keep some noise.
 _MIN_COS = 0.25
 
 
@@ -42,14 +43,16 @@ def coarse_camera(camera: Camera, stride: int) -> Camera:
                   depth_scale=camera.depth_scale)
 
 
-def plane_sigmas(range_m: float, cos_view: float, area_m2: float, cfg: ObserveConfig) -> tuple[float, float]:
-    """(normal sigma in radians, offset sigma in metres) of a plane fitted to depth: both grow
-    with the effective range (range over the cosine of the viewing angle), and for planes
-    smaller than `small_area_m2` with the square root of the area ratio (up to twice)."""
-    effective = range_m / max(cos_view, _MIN_COS)
-    small = float(np.clip(np.sqrt(cfg.small_area_m2 / max(area_m2, 1e-9)), 1.0, 2.0))
-    scale = 0.5 * (1.0 + effective) * small
-    return np.radians(cfg.normal_sigma_deg) * scale, cfg.offset_sigma_m * scale
+def plane_sigmas(range_m: float, cos_view: float, cfg: ObserveConfig) -> tuple[float, float]:
+    """(normal sigma in radians, offset sigma in metres) of a plane fitted to depth, calibrated
+    against planes extracted from the depth sensor's images (scripts/bench_sim.py calibrate):
+    powers of the range and of the cosine of the viewing angle. Both shrink at oblique views,
+    since depth errors lie along the line of sight, which there runs nearly within the plane;
+    the plane's area made no difference there, the sensor's systematic error dominating."""
+    cos_view = max(cos_view, _MIN_COS)
+    sigma_n = np.radians(cfg.normal_sigma_deg) * range_m**cfg.normal_range_exponent * cos_view**cfg.normal_cos_exponent
+    sigma_d = cfg.offset_sigma_m * range_m**cfg.offset_range_exponent * cos_view**cfg.offset_cos_exponent
+    return float(sigma_n), float(sigma_d)
 
 
 def perturb_plane(plane: np.ndarray, sigma_n: float, sigma_d: float, rng: np.random.Generator) -> np.ndarray:
@@ -148,7 +151,7 @@ def _observe(part: Polygon, element: Element, plane_C: np.ndarray, T_B_C: np.nda
     to_centre = centre_B - T_B_C[:3, 3]
     range_m = float(np.linalg.norm(to_centre))
     cos_view = abs(float(element.plane[:3] @ to_centre)) / range_m
-    sigma_n, sigma_d = plane_sigmas(range_m, cos_view, part.area, cfg)
+    sigma_n, sigma_d = plane_sigmas(range_m, cos_view, cfg)
     noisy = perturb_plane(plane_C, sigma_n, sigma_d, rng)
     ring_C = _project(ring_B @ T_C_B[:3, :3].T + T_C_B[:3, 3], noisy)
     centre_C = _project((T_C_B[:3, :3] @ centre_B + T_C_B[:3, 3])[None], noisy)[0]

@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
+import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -97,6 +98,32 @@ class FrontEndConfig(Section):
     noise_deg: float = Field(0.05, ge=0, description="white noise on each keyframe orientation")
 
 
+class PlaneNoiseConfig(Section):
+    """Error of a plane fitted to a depth sensor's image, dominated by the sensor's systematic
+    depth error (calibrated against planes extracted from simulated depth: scripts/bench_sim.py
+    calibrate). Used to draw the simulator's plane detections and as the floor of the plane
+    extractor's covariance."""
+
+    normal_sigma_deg: float = Field(0.24, ge=0, description="normal noise of a plane seen frontally at 1 m ")
+    normal_range_exponent: float = Field(0.95, description="normal noise grows as range^this (range in metres)")
+    normal_cos_exponent: float = Field(1.4, description="normal noise scales as cos(viewing angle)^this (the cosine floored at 0.25)")
+    offset_sigma_m: float = Field(0.0028, ge=0, description="offset noise of a plane seen frontally at 1 m")
+    offset_range_exponent: float = Field(1.6, description="offset noise grows as range^this")
+    offset_cos_exponent: float = Field(0.9, description="offset noise scales as cos(viewing angle)^this")
+
+    def sigmas(self, range_m: float, cos_view: float) -> tuple[float, float]:
+        """(normal sigma in radians, offset sigma in metres) of a plane seen at `range_m` with
+        `cos_view` between its normal and the line of sight. Both shrink at oblique views:
+        depth errors lie along the line of sight, which there runs nearly within the plane."""
+        cos_view = max(cos_view, 0.25)
+        sigma_n = np.radians(self.normal_sigma_deg) * range_m**self.normal_range_exponent * cos_view**self.normal_cos_exponent
+        sigma_d = self.offset_sigma_m * range_m**self.offset_range_exponent * cos_view**self.offset_cos_exponent
+        return float(sigma_n), float(sigma_d)
+
+    def off(self) -> "PlaneNoiseConfig":
+        return self.model_copy(update={"normal_sigma_deg": 0.0, "offset_sigma_m": 0.0})
+
+
 class ObserveConfig(Section):
     """Simulated plane detections (--sensor planes)."""
 
@@ -106,12 +133,7 @@ class ObserveConfig(Section):
     max_obliquity_deg: float = Field(75.0, gt=0, le=90, description="planes seen more obliquely than this are not detected")
     min_area_m2: float = Field(0.25, ge=0, description="smallest visible area of a detected plane")
     min_pixels: int = Field(1500, ge=1, description="smallest number of full-resolution pixels of a detected plane")
-    normal_sigma_deg: float = Field(0.24, ge=0, description="normal noise of a plane seen frontally at 1 m (calibrated against planes extracted from the depth sensor: scripts/bench_sim.py calibrate)")
-    normal_range_exponent: float = Field(0.95, description="normal noise grows as range^this (range in metres)")
-    normal_cos_exponent: float = Field(1.4, description="normal noise scales as cos(viewing angle)^this (the cosine floored at 0.25)")
-    offset_sigma_m: float = Field(0.0028, ge=0, description="offset noise of a plane seen frontally at 1 m (calibrated likewise)")
-    offset_range_exponent: float = Field(1.6, description="offset noise grows as range^this")
-    offset_cos_exponent: float = Field(0.9, description="offset noise scales as cos(viewing angle)^this")
+    noise: PlaneNoiseConfig = PlaneNoiseConfig()
     floors_and_ceilings: bool = Field(True, description="also detect floor and ceiling planes")
     oversegment_probability: float = Field(0.05, ge=0, le=1, description="chance that a detector splits a plane (twice the minimum area or more) into two detections")
 
@@ -189,6 +211,7 @@ class ExtractionConfig(Section):
     min_cells: int = Field(3, ge=1, description="smallest number of cells of a plane")
     min_area_m2: float = Field(0.2, ge=0, description="smallest area of a reported plane")
     polygon_tolerance_px: float = Field(2.0, ge=0, description="the extent polygon may deviate from the region outline by this many pixels")
+    systematic: PlaneNoiseConfig = Field(default_factory=PlaneNoiseConfig, description="the sensor's systematic plane error, added to the covariance from the pixels (which averages per-pixel noise away and so alone is far too confident)")
 
 
 class DeviationConfig(Section):

@@ -84,7 +84,7 @@ def calibrate(args) -> None:
     noise = seq.meta.simulated.get("depth_noise") or {}
     print(f"{len(errors.range_m)} extracted planes matched to as-built surfaces (purity >= {PURITY}); depth noise: "
           f"scale {noise.get('scale_sigma')}, tilt {noise.get('tilt_sigma_per_m')}, curvature {noise.get('curvature_sigma_per_m')} /m; planes sensor: "
-          f"{cfg.sim.observe.normal_sigma_deg:g} deg, {100 * cfg.sim.observe.offset_sigma_m:g} cm at 1 m")
+          f"{cfg.sim.observe.noise.normal_sigma_deg:g} deg, {100 * cfg.sim.observe.noise.offset_sigma_m:g} cm at 1 m")
     print("range m | n | normal deg median, p90: depth / planes (ratio) | offset cm median, p90: depth / planes (ratio)")
     for b in stats:
         r = b.ratios()

@@ -9,7 +9,7 @@ from scipy.stats import chi2
 
 from depth_scenes import CAMERA, look_at, room, viewpoints
 
-from bimgraph.config import DepthNoiseConfig, ExtractionConfig
+from bimgraph.config import DepthNoiseConfig, ExtractionConfig, PlaneNoiseConfig
 from bimgraph.geometry import normal_angle_deg, plane_to_frame
 from bimgraph.planes.extractor import PlaneExtractor, extract_planes
 from bimgraph.sim.render import DepthRenderer, add_depth_noise
@@ -19,6 +19,8 @@ WALLS = {2, 3, 4, 5, 6, 7, 8}
 # distortion), and its covariance models pixel noise. Its accuracy with the systematic part
 # is what tests/test_sim_calibration.py measures.
 NOISE = DepthNoiseConfig().without_systematic()
+# ...and so the extractor adds no systematic floor to its covariance either.
+PIXEL_ONLY = ExtractionConfig(systematic=PlaneNoiseConfig().off())
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +42,7 @@ def frames(scene):
 
 @pytest.fixture(scope="module")
 def extracted(frames):
-    extractor = PlaneExtractor(CAMERA, ExtractionConfig(), NOISE)
+    extractor = PlaneExtractor(CAMERA, PIXEL_ONLY, NOISE)
     return [extractor.extract(noisy) for _, _, _, noisy in frames]
 
 
@@ -128,8 +130,7 @@ def nees(plane, truth_C):
     return float(error @ np.linalg.solve(plane.cov, error))
 
 
-def test_covariances_are_consistent(scene, frames, extracted):
-    lo, hi = chi2.ppf([0.025, 0.975], 3)
+def nees_values(scene, frames, extracted):
     values = []
     for (T_B_C, depth, ids, _), result in zip(frames, extracted):
         for k, plane in enumerate(result.planes):
@@ -138,16 +139,44 @@ def test_covariances_are_consistent(scene, frames, extracted):
                 continue  # the consistency of a plane's own noise, not of a neighbour's pixels
             values.append(nees(plane, plane_to_frame(scene.planes_B[faces[0]], T_B_C)))
             assert np.linalg.eigvalsh(plane.cov).min() > 0
-    values = np.array(values)
+    return np.array(values)
+
+
+def test_covariances_are_consistent(scene, frames, extracted):
+    lo, hi = chi2.ppf([0.025, 0.975], 3)
+    values = nees_values(scene, frames, extracted)
     inside = ((values >= lo) & (values <= hi)).mean()
     assert len(values) >= 60
     assert inside >= 0.90, f"{inside:.2%} of {len(values)} planes within the 95 % bounds, mean NEES {values.mean():.2f}"
 
 
+def test_covariances_hold_with_the_sensors_systematic_error(scene):
+    """On a realistic sensor (per-frame depth scale and distortion), the pixels alone would
+    make the covariance far too small; with the systematic floor the NEES stays plausible."""
+    renderer = DepthRenderer(*scene.arrays())
+    sensor = DepthNoiseConfig()
+    rng = np.random.default_rng(11)
+    frames = []
+    for T_B_C in viewpoints(np.random.default_rng(6), 30):
+        depth, ids, cos_inc = renderer.render(CAMERA, T_B_C, with_incidence=True)
+        frames.append((T_B_C, depth, ids, add_depth_noise(depth, sensor, rng, cos_inc)))
+    extractor = PlaneExtractor(CAMERA, ExtractionConfig(), sensor)
+    values = nees_values(scene, frames, [extractor.extract(noisy) for *_, noisy in frames])
+    pixel_only = PlaneExtractor(CAMERA, PIXEL_ONLY, sensor)
+    overconfident = nees_values(scene, frames, [pixel_only.extract(noisy) for *_, noisy in frames])
+    assert len(values) >= 60
+    print(f"NEES median {np.median(values):.2f} p90 {np.percentile(values, 90):.2f}; "
+          f"pixels only: median {np.median(overconfident):.0f}")
+    assert np.median(overconfident) > 100  # why the floor is needed
+    lo, hi = chi2.ppf([0.025, 0.975], 3)
+    inside = ((values >= lo) & (values <= hi)).mean()
+    assert inside >= 0.8, f"{inside:.2%} of {len(values)} planes within the 95 % bounds"
+
+
 def test_covariance_follows_noise_and_size(scene):
     """Farther and smaller planes are less certain: the covariance is not a constant."""
     renderer = DepthRenderer(*scene.arrays())
-    cfg = ExtractionConfig()
+    cfg = PIXEL_ONLY
     sigmas = []
     for distance in (1.5, 4.0):
         T_B_C = look_at((distance, 2.0, 1.3), (0.0, 2.0, 1.3))

@@ -109,7 +109,7 @@ def test_observations_lie_on_their_as_built_surfaces(office):
     sig = [(np.linalg.norm(p.centre), np.sqrt(p.cov[2][2])) for kf in seq.keyframes for p in kf.planes]
     r, s = np.array(sig).T
     assert np.corrcoef(r, s)[0, 1] > 0.5
-    assert cfg.offset_sigma_m <= np.median(s) <= 4 * cfg.offset_sigma_m
+    assert cfg.noise.offset_sigma_m <= np.median(s) <= 4 * cfg.noise.offset_sigma_m
 
 
 @pytest.mark.parametrize("fixture", ["office", "site"])

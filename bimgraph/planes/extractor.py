@@ -270,7 +270,11 @@ class PlaneExtractor:
         area = float(footprint.sum())
         centre = (footprint[:, None] * cells.r[region] * z[:, None]).sum(axis=0) / area
         centre -= (n @ centre + d) * n
-        return DetectedPlane(n, d, 0.5 * (cov + cov.T), np.zeros((0, 3)), area, centre, int(cells.count[region].sum()))
+        # The sensor's systematic error does not average out over the pixels: add it.
+        range_m = float(np.linalg.norm(centre))
+        sigma_n, sigma_d = self.cfg.systematic.sigmas(range_m, abs(float(n @ centre)) / range_m)
+        cov = 0.5 * (cov + cov.T) + np.diag([sigma_n**2, sigma_n**2, sigma_d**2])
+        return DetectedPlane(n, d, cov, np.zeros((0, 3)), area, centre, int(cells.count[region].sum()))
 
     def _outline(self, region: np.ndarray, plane: DetectedPlane) -> np.ndarray:
         """The outer outline of the region's cells, simplified, cast from the image onto the plane."""

@@ -17,7 +17,7 @@ import numpy as np
 from bimgraph.config import ObserveConfig
 from bimgraph.geometry import normal_angle_deg, plane_to_frame
 from bimgraph.planes.extractor import Extraction
-from bimgraph.sim.observe import perturb_plane, plane_sigmas
+from bimgraph.sim.observe import perturb_plane
 
 RANGE_BINS_M = ((0.0, 2.0), (2.0, 3.0), (3.0, 4.0), (4.0, 8.0))
 
@@ -36,7 +36,7 @@ class PlaneErrors:
         """(normal angle deg, offset m) of `draws` planes-sensor detections of each row's view."""
         angles, offsets = [], []
         for r, c, true_C in zip(self.range_m, self.cos_view, self.plane_C_true):
-            sigma_n, sigma_d = plane_sigmas(r, c, cfg)
+            sigma_n, sigma_d = cfg.noise.sigmas(r, c)
             for _ in range(draws):
                 noisy = perturb_plane(true_C, sigma_n, sigma_d, rng)
                 angles.append(normal_angle_deg(noisy[:3], true_C[:3]))

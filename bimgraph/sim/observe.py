@@ -43,18 +43,6 @@ def coarse_camera(camera: Camera, stride: int) -> Camera:
                   depth_scale=camera.depth_scale)
 
 
-def plane_sigmas(range_m: float, cos_view: float, cfg: ObserveConfig) -> tuple[float, float]:
-    """(normal sigma in radians, offset sigma in metres) of a plane fitted to depth, calibrated
-    against planes extracted from the depth sensor's images (scripts/bench_sim.py calibrate):
-    powers of the range and of the cosine of the viewing angle. Both shrink at oblique views,
-    since depth errors lie along the line of sight, which there runs nearly within the plane;
-    the plane's area made no difference there, the sensor's systematic error dominating."""
-    cos_view = max(cos_view, _MIN_COS)
-    sigma_n = np.radians(cfg.normal_sigma_deg) * range_m**cfg.normal_range_exponent * cos_view**cfg.normal_cos_exponent
-    sigma_d = cfg.offset_sigma_m * range_m**cfg.offset_range_exponent * cos_view**cfg.offset_cos_exponent
-    return float(sigma_n), float(sigma_d)
-
-
 def perturb_plane(plane: np.ndarray, sigma_n: float, sigma_d: float, rng: np.random.Generator) -> np.ndarray:
     """OrientedPlane3 retraction of a random tangent vector: the normal turned by a 2-D
     Gaussian angle (isotropic, so the tangent basis does not matter), d shifted."""
@@ -151,7 +139,7 @@ def _observe(part: Polygon, element: Element, plane_C: np.ndarray, T_B_C: np.nda
     to_centre = centre_B - T_B_C[:3, 3]
     range_m = float(np.linalg.norm(to_centre))
     cos_view = abs(float(element.plane[:3] @ to_centre)) / range_m
-    sigma_n, sigma_d = plane_sigmas(range_m, cos_view, cfg)
+    sigma_n, sigma_d = cfg.noise.sigmas(range_m, cos_view)
     noisy = perturb_plane(plane_C, sigma_n, sigma_d, rng)
     ring_C = _project(ring_B @ T_C_B[:3, :3].T + T_C_B[:3, 3], noisy)
     centre_C = _project((T_C_B[:3, :3] @ centre_B + T_C_B[:3, 3])[None], noisy)[0]

@@ -27,17 +27,22 @@ def write_tum(path: Path, stamps, poses) -> None:
     write_atomic(path, format_tum(stamps, poses))
 
 
-def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Stamps (N,) and poses (N, 4, 4); a FormatError names the bad line."""
+def data_lines(path: Path):
+    """(line number, fields) of every line of a TUM text file that is neither blank nor a
+    `#` comment; fields split at white space (and commas, as some tools write)."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
-    stamps, poses = [], []
     for lineno, line in enumerate(path.read_text().splitlines(), start=1):
         line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        fields = line.replace(",", " ").split()
+        if line and not line.startswith("#"):
+            yield lineno, line.replace(",", " ").split()
+
+
+def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Stamps (N,) and poses (N, 4, 4); a FormatError names the bad line."""
+    stamps, poses = [], []
+    for lineno, fields in data_lines(path):
         if len(fields) != 8:
             raise FormatError(f"{path}: line {lineno}: expected 8 values (stamp tx ty tz qx qy qz qw), got {len(fields)}")
         try:

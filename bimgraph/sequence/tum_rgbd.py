@@ -18,7 +18,7 @@ from bimgraph.errors import FormatError, InputError
 from bimgraph.files import read_json, write_atomic
 from bimgraph.geometry import pose_to_tum
 from bimgraph.sequence.format import Camera, Keyframe, Sequence, SequenceMeta
-from bimgraph.sequence.tum import read_tum
+from bimgraph.sequence.tum import data_lines, read_tum
 from bimgraph.validation import parse_model
 
 DEPTH_LIST = "depth.txt"
@@ -59,15 +59,8 @@ def read_depth_png(path: Path, scale: float = DEPTH_SCALE) -> np.ndarray:
 
 def read_image_list(path: Path) -> tuple[np.ndarray, list[str]]:
     """Stamps and relative paths of a TUM `depth.txt` / `rgb.txt`."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
     stamps, names = [], []
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        fields = line.split()
+    for lineno, fields in data_lines(path):
         if len(fields) != 2:
             raise FormatError(f"{path}: line {lineno}: expected `stamp path`, got {len(fields)} fields")
         try:

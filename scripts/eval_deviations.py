@@ -2,8 +2,8 @@
 as-built deviations, missing walls and clutter, report the deviations, and score them against
 the ground truth; and compare extrinsic error and ATE with the same world without deviations.
 
-    python scripts/eval_deviations.py --sequences SEQ... --clean NODEVSEQ... [--oracle] [--snoop]
-    python scripts/eval_deviations.py --synthetic [--seeds 0 1 2] [--snoop] [-c CONFIG]
+    python scripts/eval_deviations.py --sequences SEQ... --clean NODEVSEQ... [--oracle] [--[no-]snoop]
+    python scripts/eval_deviations.py --synthetic [--seeds 0 1 2] [--[no-]snoop] [-c CONFIG]
 
 `--sequences` are simulator sequences (`bimgraph simulate`, with `groundtruth/as_built.json`);
 `--clean` the same scenarios and seeds simulated without deviations (for the extrinsic and ATE
@@ -11,13 +11,10 @@ ratios). `--synthetic` uses the backend's synthetic rooms (`bimgraph.backend.syn
 a share of faces moved 5-10 cm and a share not built (their observations removed); there
 `clean_*` is the world as planned and `nodev_*` the same missing walls without deviations,
 and the ratios are against the latter. `--oracle` gives the backend the true associations, to
-measure the deviation step apart from the association. `--snoop` also removes, at every
-offline round, the plane-to-BIM factors of faces found deviating against the rest
-(`bimgraph.deviations.robust.snoop`): the proposed robust alignment.
-
-The backend does not yet hand out its final graph, so this script reads it through a
-subclass of `OfflineEstimator` (its `_graph`, `_revise`, `_associate` and `_results` steps);
-the hook the backend should offer instead is in the issue 8 report.
+measure the deviation step apart from the association. `--snoop` / `--no-snoop` override
+`backend.offline.snoop_deviations` (the robust alignment: at every offline round, the
+plane-to-BIM factors of faces found deviating against the rest leave the graph) for the
+deviating runs; the runs without deviations use the configuration as given.
 """
 
 from __future__ import annotations
@@ -26,10 +23,8 @@ import argparse
 import tempfile
 import time
 from collections import Counter
-from functools import partial
 from pathlib import Path
 
-import gtsam
 import numpy as np
 
 from bimgraph.backend.alignment import Alignment
@@ -38,64 +33,11 @@ from bimgraph.backend.synthetic import make_scene
 from bimgraph.bim.ifc_import import import_ifc
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig, DeviationConfig, load_config
-from bimgraph.deviations.graph import joint_covariance, observed_planes
 from bimgraph.deviations.outputs import write_deviation_outputs
-from bimgraph.deviations.robust import snoop
 from bimgraph.evaluation.metrics import ate, extrinsic_error
 from bimgraph.geometry import pose_from_tum
 from bimgraph.sequence.format import Camera, load_sequence
 from bimgraph.sequence.groundtruth import load_groundtruth
-
-
-class CapturingOffline(OfflineEstimator):
-    """The offline estimator, keeping its graph and last values (and optionally snooping
-    deviating faces out of the alignment at each round)."""
-
-    def __init__(self, *args, dev_cfg: DeviationConfig, snoop_faces: bool, plane_map: PlaneMap, **kwargs):
-        super().__init__(*args, **kwargs)
-        self.dev_cfg, self.snoop_faces, self.plane_map = dev_cfg, snoop_faces, plane_map
-        self.removed: list = []
-
-    def _graph(self, keyframes, observations):
-        self.last_graph = super()._graph(keyframes, observations)
-        return self.last_graph
-
-    def _planes(self, values, marginals):
-        """Every active landmark as the deviation step reads it (a landmark's face is its
-        plane-to-BIM factor while the round's graph stands)."""
-        active = self._active()
-        bim_factors = {lm.id: self._bim_factor(lm) for lm in active if lm.face is not None}
-        return observed_planes(active, values, partial(joint_covariance, marginals), bim_factors)
-
-    def _revise(self, values):
-        changed = super()._revise(values)
-        if not self.snoop_faces:
-            return changed
-        planes = self._planes(values, gtsam.Marginals(self.last_graph, values))
-        for outlier in snoop(planes, self.plane_map, values.atPose3(gtsam.symbol("e", 0)).matrix(), self.dev_cfg):
-            lm = self.landmarks[outlier.landmark]
-            if lm.face != outlier.face_id:
-                continue  # revised by the backend in this round already
-            lm.rejected.add(lm.face)
-            lm.face = None
-            self.removed.append(outlier)
-            changed = True
-        return changed
-
-    def _associate(self, values, marginals):
-        """The backend's association, except that a snooped landmark stays off its face."""
-        before = {lm.id: lm.face for lm in self._active()}
-        super()._associate(values, marginals)
-        snooped = {(o.landmark, o.face_id) for o in self.removed}
-        for lm in self._active():
-            if (lm.id, lm.face) in snooped:
-                lm.face = None
-        return any(before.get(lm.id) != lm.face for lm in self._active())
-
-    def _results(self, keyframes, values, marginals, timings, rounds):
-        # Before the results step re-resolves faces: each landmark's face is still its factor.
-        self.final_planes = self._planes(values, marginals)
-        return super()._results(keyframes, values, marginals, timings, rounds)
 
 
 def deviate_synthetic(scene, rng, deviating_fraction: float, missing_fraction: float):
@@ -157,15 +99,15 @@ def evaluate(plane_map: PlaneMap, keyframes, initial, truth, T_B_C_true, T_B_S_t
              kinds: dict | None = None) -> dict:
     """Run the offline backend with the deviation step and score it. `kinds` maps (keyframe,
     observation) to the true kind of surface observed (wall, clutter, ...), if known."""
-    est = CapturingOffline(plane_map, backend_cfg, initial, dev_cfg=dev_cfg, snoop_faces=args.snoop,
-                           plane_map=plane_map, oracle=oracle)
+    if args.snoop is not None:
+        offline = backend_cfg.offline.model_copy(update={"snoop_deviations": args.snoop})
+        backend_cfg = backend_cfg.model_copy(update={"offline": offline})
+    est = OfflineEstimator(plane_map, backend_cfg, initial, oracle=oracle, deviations=dev_cfg)
     start = time.perf_counter()
     res = est.run(keyframes)
     t_backend = time.perf_counter() - start
-    planes = est.final_planes
-    t_planes = time.perf_counter() - start - t_backend
-    data = write_deviation_outputs(out_dir, plane_map, planes, res.T_B_S, res.T_B_C, camera, dev_cfg)
-    t_report = time.perf_counter() - start - t_backend - t_planes
+    data = write_deviation_outputs(out_dir, plane_map, res.observed_planes, res.T_B_S, res.T_B_C, camera, dev_cfg)
+    t_report = time.perf_counter() - start - t_backend
     out = score(data, truth, dev_cfg)
     if kinds is not None:
         # An unplanned plane is right if most of its observations are of no planned wall.
@@ -176,9 +118,9 @@ def evaluate(plane_map: PlaneMap, keyframes, initial, truth, T_B_C_true, T_B_S_t
     rot, trans = extrinsic_error(res.T_B_S, T_B_S_true)
     sigma = np.sqrt(np.diag(res.cov_T_B_S))
     out.update(ext_deg=rot, ext_cm=trans, ext_sigma_deg=float(np.degrees(sigma[:3].max())), ext_sigma_cm=float(sigma[3:5].max() * 100),
-               ate_m=ate(res.T_B_C, T_B_C_true), snooped=len(est.removed),
-               snooped_true=sum(abs(truth[o.face_id][0]) > dev_cfg.tolerance_m for o in est.removed),
-               backend_s=t_backend, marginals_s=t_planes, report_s=t_report)
+               ate_m=ate(res.T_B_C, T_B_C_true), snooped=len(est.snooped),
+               snooped_true=sum(abs(truth[face][0]) > dev_cfg.tolerance_m for _, face in est.snooped),
+               backend_s=t_backend, marginals_s=res.timings["deviation_covariances_s"], report_s=t_report)
     return out
 
 
@@ -262,7 +204,8 @@ def main():
     parser.add_argument("--deviating", type=float, default=0.2)
     parser.add_argument("--missing", type=float, default=0.3)
     parser.add_argument("--drift-scale", type=float, default=1.0, help="scales the synthetic front-end's drift per keyframe")
-    parser.add_argument("--snoop", action="store_true")
+    parser.add_argument("--snoop", action=argparse.BooleanOptionalAction, default=None,
+                        help="override backend.offline.snoop_deviations in the deviating runs")
     parser.add_argument("--oracle", action="store_true", help="give the backend the true associations (simulator only)")
     parser.add_argument("--config", "-c", type=Path, default=None)
     args = parser.parse_args()

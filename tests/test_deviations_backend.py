@@ -1,10 +1,12 @@
 """The deviation step on the real backend: the online iSAM2 graph of the backend's synthetic
 rooms, with one face of the plan moved, read through `observed_planes_isam2` and written by
-`write_deviation_outputs`."""
+`write_deviation_outputs`; and the offline backend's robust alignment
+(`offline.snoop_deviations`), which takes the moved face out of the alignment."""
 
 import numpy as np
 import pytest
 
+from bimgraph.backend.offline import OfflineEstimator
 from bimgraph.backend.online import Backend
 from bimgraph.backend.synthetic import make_scene
 from bimgraph.bim.planemap import PlaneMap
@@ -70,3 +72,45 @@ def test_outputs_are_written_and_consistent_with_the_truth(run, tmp_path):
         # The graph's sigma is honest: every face within 4 sigma of the truth.
         assert abs(f.offset_m - truth) < 4 * f.offset_sigma_m + 0.005, f
     assert next(f for f in measured if f.face_id == "r00E").offset_m > 0.04
+
+
+@pytest.fixture(scope="module")
+def offline_runs():
+    """The offline backend on the same rooms, without and with snooping deviating faces."""
+    scene = make_scene(160, rooms=(2, 1), seed=0, drift_rot_deg=0.01, drift_trans_m=0.001)
+    plan = moved_plan(scene.plane_map)
+    runs = {}
+    for snoop in (False, True):
+        cfg = BackendConfig()
+        cfg.offline.snoop_deviations = snoop
+        est = OfflineEstimator(plan, cfg, scene.initial)
+        runs[snoop] = est, est.run(scene.keyframes)
+    return plan, runs
+
+
+def test_offline_snooping_takes_only_the_moved_wall_out_of_the_alignment(offline_runs):
+    plan, runs = offline_runs
+    est, res = runs[False]
+    assert est.snooped == set()
+    assert "r00E" in {lm.face for lm in res.landmarks}
+
+    est, res = runs[True]
+    assert {face for _, face in est.snooped} == set(MOVED)
+    assert "r00E" not in {lm.face for lm in res.landmarks}  # its factor left the graph and stays out
+    assert all("r00E" in est.landmarks[lm_id].rejected for lm_id, _ in est.snooped)
+    # every other face observed keeps its match
+    assert {lm.face for lm in res.landmarks if lm.face} == {lm.face for lm in runs[False][1].landmarks if lm.face} - set(MOVED)
+    assert res.rounds >= 2
+
+
+def test_offline_snooped_wall_is_measured_against_the_others(offline_runs, tmp_path):
+    plan, runs = offline_runs
+    _, res = runs[True]
+    camera = Camera(width=640, height=480, fx=525.0, fy=525.0, cx=319.5, cy=239.5)
+    data = write_deviation_outputs(tmp_path, plan, res.observed_planes, res.T_B_S, res.T_B_C, camera, DeviationConfig())
+    moved = next(f for f in data.faces if f.face_id == "r00E")
+    assert moved.status == "deviating"
+    assert abs(moved.offset_m - MOVED["r00E"]) < 3 * moved.offset_sigma_m
+    for f in data.faces:
+        if f.offset_m is not None and f.face_id not in MOVED:
+            assert abs(f.offset_m) < 4 * f.offset_sigma_m + 0.005, f

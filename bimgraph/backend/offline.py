@@ -7,7 +7,10 @@ Levenberg-Marquardt smooths it, and with the smoothed estimates and marginals th
 stopped fitting are revised, unmatched landmarks are associated, landmarks spanning coplanar
 sections of a wall are split per section, and landmarks matched to the same BIM face are
 merged into one (the loop closures a drifting causal pass misses); until a
-round changes nothing.
+round changes nothing. With `offline.snoop_deviations`, a round also takes off its face every
+landmark whose face deviates significantly from the alignment the rest of the graph decides
+(`bimgraph.deviations.robust.snoop`), so that the consistent walls alone decide the extrinsic
+and the deviating one is measured against it.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ from bimgraph.backend.landmarks import Landmark, transform_points
 from bimgraph.backend.online import Backend, Oracle, observations_of, revision_reason, unmatch
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
 from bimgraph.bim.planemap import PlaneMap
-from bimgraph.config import BackendConfig
+from bimgraph.config import BackendConfig, DeviationConfig
 from bimgraph.geometry import inverse, plane_from_frame
 from bimgraph.sequence.format import Keyframe
 from factors.plane import predict_local_plane
@@ -34,8 +37,12 @@ from factors.plane import predict_local_plane
 
 class OfflineEstimator:
     def __init__(self, plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,
-                 listener: Listener | None = None, oracle: Oracle | None = None):
+                 listener: Listener | None = None, oracle: Oracle | None = None,
+                 deviations: DeviationConfig | None = None):
         self.cfg = cfg
+        self.plane_map = plane_map
+        self.deviations = deviations or DeviationConfig()
+        self.snooped: set[tuple[int, str]] = set()  # (landmark, face) pairs snooping took apart
         self.listener = listener or Listener()
         # the causal pass reports nothing: the listener hears the smoothed results
         self.online = Backend(plane_map, cfg, initial, None, oracle, covariance=False)
@@ -64,7 +71,8 @@ class OfflineEstimator:
             t_opt += t1 - t0
             self._refresh(values)
             changed = self.oracle is None and rounds <= self.cfg.offline.max_rounds and (
-                self._revise(values) | self._associate(values, marginals) | self._split(values) | self._merge(values))
+                self._revise(values) | self._snoop(values, marginals) | self._associate(values, marginals)
+                | self._split(values) | self._merge(values))
             t_assoc += time.perf_counter() - t1
             if not changed:
                 break
@@ -139,12 +147,17 @@ class OfflineEstimator:
                     merged = True
         return merged
 
-    def _results(self, keyframes, values, marginals, timings, rounds) -> Results:
+    def _observed_planes(self, values, marginals) -> list:
+        """Every active landmark as the deviation step reads it; a matched landmark's plane-to-BIM
+        factor is the one of the graph `values` and `marginals` solve."""
         from bimgraph.deviations.graph import joint_covariance, observed_planes
 
+        return observed_planes(self._active(), values, functools.partial(joint_covariance, marginals),
+                               {lm.id: self._bim_factor(lm) for lm in self._active() if lm.face is not None})
+
+    def _results(self, keyframes, values, marginals, timings, rounds) -> Results:
         start = time.perf_counter()
-        planes = observed_planes(self._active(), values, functools.partial(joint_covariance, marginals),
-                                 {lm.id: self._bim_factor(lm) for lm in self._active() if lm.face is not None})
+        planes = self._observed_planes(values, marginals)
         timings["deviation_covariances_s"] = time.perf_counter() - start
         T_S_B = values.atPose3(E)
         T_B_S = T_S_B.inverse().matrix()
@@ -188,6 +201,26 @@ class OfflineEstimator:
                 changed = True
         return changed
 
+    def _snoop(self, values: gtsam.Values, marginals: gtsam.Marginals) -> bool:
+        """Unmatch the landmarks whose face deviates beyond the tolerance from the alignment the
+        rest of the graph decides; their factor leaves the next round's graph, and the deviation
+        step measures the face against the consistent walls' alignment."""
+        if not self.cfg.offline.snoop_deviations:
+            return False
+        from bimgraph.deviations.robust import snoop
+
+        outliers = snoop(self._observed_planes(values, marginals), self.plane_map,
+                         values.atPose3(E).matrix(), self.deviations)
+        changed = False
+        for outlier in outliers:
+            lm = self.landmarks[outlier.landmark]
+            if lm.face != outlier.face_id:
+                continue  # already revised in this round
+            self.snooped.add((lm.id, lm.face))
+            unmatch(lm, f"deviates {outlier.deviation.offset_m:+.3f} m from plan", self.listener)
+            changed = True
+        return changed
+
     def _associate(self, values: gtsam.Values, marginals: gtsam.Marginals) -> bool:
         todo = [lm for lm in self._active() if lm.face is None and self.bim.eligible(lm.area, len(lm.observations))]
         if not todo:
@@ -201,7 +234,8 @@ class OfflineEstimator:
             cov = np.block([[joint.at(a, b) for b in keys] for a in keys])
             plane_B, cov_B = plane_in_B(T_S_B, pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A), cov)
             candidates.append(PlaneInB(lm.id, plane_B, cov_B, lm.extent_in(T_B_S), lm.area))
-        matches = self.bim.match(candidates)
+        # a face snooping took a landmark off would only pull it back: it stays apart
+        matches = [m for m in self.bim.match(candidates) if (m.landmark, m.face) not in self.snooped]
         for m in matches:
             lm = self.landmarks[m.landmark]
             lm.face, lm.score = m.face, m.score
@@ -210,5 +244,6 @@ class OfflineEstimator:
 
 
 def run_offline(keyframes: list[Keyframe], plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,
-                listener: Listener | None = None, oracle: Oracle | None = None) -> Results:
-    return OfflineEstimator(plane_map, cfg, initial, listener, oracle).run(keyframes)
+                listener: Listener | None = None, oracle: Oracle | None = None,
+                deviations: DeviationConfig | None = None) -> Results:
+    return OfflineEstimator(plane_map, cfg, initial, listener, oracle, deviations).run(keyframes)

@@ -263,7 +263,9 @@ def evaluate(
     config_file: Optional[Path] = ConfigOption,
 ):
     """Measure runs against ground truth: ATE, RPE, extrinsic error, the paper's wall errors,
-    association precision and recall. Writes metrics.json into each output folder.
+    association precision and recall. Writes metrics.json into each output folder. The last
+    row, "truth", is the ground-truth trajectory measured the same way: the floor of the wall
+    errors that the detections' noise and the as-built deviations leave.
 
     Example: bimgraph eval out/online out/offline --gt seq
     """
@@ -285,6 +287,7 @@ def evaluate(
         metrics = evaluation.metrics(estimate)
         write_metrics(out_dir, metrics)
         rows.append({**summary_row(Path(out_dir).name, metrics), **run_timings(out_dir)})
+    rows.append(summary_row("truth", evaluation.metrics(evaluation.truth())))
     if baselines:
         manual = rows[0]
         for row in rows[1:]:

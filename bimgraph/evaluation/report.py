@@ -32,7 +32,7 @@ def metrics_table(rows: list[dict]):
     present = [c for c in COLUMNS if any(c[0] in r for r in rows)]
     table = Table(title="bimgraph evaluation", caption="E: extrinsic T_B_S error; wall: the paper's wall errors; "
                   "-%: reduction against manual; prec./recall: association against ground truth; "
-                  "ms/kf: median online latency per keyframe")
+                  "ms/kf: median online latency per keyframe; truth: the ground truth measured alike")
     for _, title, _ in present:
         if title == "method":
             table.add_column(title, no_wrap=True)

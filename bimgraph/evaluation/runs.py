@@ -58,6 +58,11 @@ class Evaluation:
                               "(an unfinished online run?)")
         return evaluate(estimate, self.sequence.keyframes, self.gt, self.plane_map)
 
+    def truth(self) -> Estimate:
+        """The ground truth as if it were a method: its wall errors are the floor that the
+        detections' noise and the as-built deviations leave to every method."""
+        return Estimate(list(self.gt.T_B_C), self.gt.T_B_S, None)
+
     def baseline(self, method: str, associations) -> Estimate:
         """The paper's `method` on this sequence, with the given associations."""
         keyframes = self.sequence.keyframes

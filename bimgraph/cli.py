@@ -203,23 +203,24 @@ def run(
     """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from bimgraph.backend.pipeline import parse_seed, run as run_backend
+    from bimgraph.backend.pipeline import load_inputs, parse_seed, run as run_backend
     from bimgraph.config import load_config
 
     cfg = load_config(config_file)
     out = console()
     seeds = [parse_seed(s) for s in seed]
+    inputs = load_inputs(sequence, bim_model, cfg)
     viewer = listener = None
     if rrd is not None or spawn:
         from bimgraph.viewer.session import follow_run
 
-        viewer, listener = follow_run(sequence, bim_model, cfg, rrd=rrd, spawn=spawn)
+        viewer, listener = follow_run(inputs, cfg, rrd=rrd, spawn=spawn)
     try:
         with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                       console=out, transient=True) as bar:
             task = bar.add_task(f"bimgraph run ({mode})", total=None)
             run_backend(sequence, output, mode=mode, bim=bim_model, config=cfg, seeds=seeds, oracle=oracle,
-                        listener=listener, progress=lambda done, total: bar.update(task, completed=done))
+                        listener=listener, progress=lambda done, total: bar.update(task, completed=done), inputs=inputs)
     finally:
         if viewer is not None:  # an interrupted run still leaves a complete recording
             from bimgraph.viewer.session import finish

@@ -24,20 +24,14 @@ from pathlib import Path
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bimgraph.backend.alignment import Alignment  # noqa: E402
 from bimgraph.backend.online import Backend  # noqa: E402
-from bimgraph.bim.planemap import PlaneMap, load_plane_map  # noqa: E402
+from bimgraph.backend.pipeline import initial_alignment, load_inputs  # noqa: E402
+from bimgraph.bim.planemap import PlaneMap  # noqa: E402
 from bimgraph.config import Config, load_config  # noqa: E402
-from bimgraph.geometry import pose_from_tum  # noqa: E402
 from bimgraph.sequence.format import Sequence, load_sequence  # noqa: E402
 from bimgraph.viewer.follow import RerunListener  # noqa: E402
 from bimgraph.viewer.rerun_viewer import RerunViewer, open_recording  # noqa: E402
 from bimgraph.viewer.rrd import component_counts, verify  # noqa: E402
-
-
-def _initial(seq: Sequence) -> Alignment:
-    a = seq.meta.initial_alignment
-    return Alignment.from_sigmas(pose_from_tum(a.T_B_S), a.sigma_rot_deg, a.sigma_trans_m)
 
 
 class _TimedListener(RerunListener):
@@ -57,7 +51,7 @@ def _run(seq: Sequence, plane_map: PlaneMap, cfg: Config, rrd: Path | None) -> d
     (including rerun's background threads) and of the main thread; with `rrd`, also the
     wall and main-thread CPU time spent in the viewer itself (its set-up, every hook, the
     final flush to disk), set-up apart."""
-    initial = _initial(seq)
+    initial = initial_alignment(seq.meta, cfg)
     wall, cpu, thread = time.perf_counter(), time.process_time(), time.thread_time()
     inside = {"viewer_wall_s": 0.0, "viewer_cpu_s": 0.0, "setup_wall_s": 0.0}
     if rrd is None:
@@ -98,17 +92,6 @@ def measure(seq: Sequence, plane_map: PlaneMap, rrd: Path, cfg: Config | None = 
             "inside_ratio": 1.0 + best["viewer_cpu_s"] / (best["thread_cpu_s"] - best["viewer_cpu_s"])}
 
 
-def _plane_map(seq: Sequence, cfg: Config) -> PlaneMap:
-    model = seq.model_path()
-    if model is None:
-        sys.exit(f"{seq.root}: the sequence names no model")
-    if model.suffix.lower() == ".json":
-        return load_plane_map(model)
-    from bimgraph.bim.ifc_import import import_ifc
-
-    return import_ifc(model, cfg.bim)[0]
-
-
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sequence", type=Path, help="an existing sequence folder (default: simulate one)")
@@ -131,7 +114,7 @@ def main():
             opts.check()
             simulate(opts, cfg)
         seq = load_sequence(root)
-        plane_map = _plane_map(seq, cfg)
+        plane_map = load_inputs(root, None, cfg).plane_map
         rrd = Path(tmp) / "bench.rrd"
         r = measure(seq, plane_map, rrd, cfg, args.repeats)
         verify(rrd)

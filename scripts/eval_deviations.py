@@ -27,15 +27,13 @@ from pathlib import Path
 
 import numpy as np
 
-from bimgraph.backend.alignment import Alignment
 from bimgraph.backend.offline import OfflineEstimator
+from bimgraph.backend.pipeline import load_inputs
 from bimgraph.backend.synthetic import make_scene
-from bimgraph.bim.ifc_import import import_ifc
 from bimgraph.bim.planemap import PlaneMap
-from bimgraph.config import BackendConfig, DeviationConfig, load_config
+from bimgraph.config import BackendConfig, Config, DeviationConfig, load_config
 from bimgraph.deviations.outputs import write_deviation_outputs
 from bimgraph.evaluation.metrics import ate, extrinsic_error
-from bimgraph.geometry import pose_from_tum
 from bimgraph.sequence.format import Camera, load_sequence
 from bimgraph.sequence.groundtruth import load_groundtruth
 
@@ -130,12 +128,11 @@ def run_clean(plane_map, keyframes, initial, T_B_C_true, T_B_S_true, backend_cfg
     return {"ext_deg": rot, "ext_cm": trans, "ate_m": ate(res.T_B_C, T_B_C_true)}
 
 
-def load_simulated(root: Path, bim_cfg):
+def load_simulated(root: Path, cfg: Config):
     seq = load_sequence(root)
     gt = load_groundtruth(root)
-    plane_map, _ = import_ifc(seq.model_path(), bim_cfg)
-    a = seq.meta.initial_alignment
-    initial = Alignment.from_sigmas(pose_from_tum(a.T_B_S), a.sigma_rot_deg, a.sigma_trans_m)
+    inputs = load_inputs(root, None, cfg)
+    plane_map, initial = inputs.plane_map, inputs.initial
     truth = {}
     for rec in gt.as_built["faces"]:
         face = plane_map.faces[plane_map.index[rec["face_id"]]]
@@ -150,14 +147,14 @@ def oracle_of(gt) -> dict:
 
 
 def run_simulated(root: Path, clean_root: Path | None, args, cfg) -> dict:
-    seq, gt, plane_map, initial, truth = load_simulated(root, cfg.bim)
+    seq, gt, plane_map, initial, truth = load_simulated(root, cfg)
     out = evaluate(plane_map, seq.keyframes, initial, truth, gt.T_B_C, gt.T_B_S, seq.meta.camera, args,
                    cfg.backend, cfg.deviations, out_dir=root / "deviations_eval", oracle=oracle_of(gt) if args.oracle else None,
                    kinds={(k, i): p["kind"] for k, planes in enumerate(gt.observations) for i, p in enumerate(planes)})
     kinds = [p["kind"] for planes in gt.observations for p in planes]
     out["clutter_share"] = sum(k not in ("wall", "floor", "ceiling") for k in kinds) / max(len(kinds), 1)
     if clean_root is not None:
-        seq_c, gt_c, plane_map_c, initial_c, _ = load_simulated(clean_root, cfg.bim)
+        seq_c, gt_c, plane_map_c, initial_c, _ = load_simulated(clean_root, cfg)
         clean = run_clean(plane_map_c, seq_c.keyframes, initial_c, gt_c.T_B_C, gt_c.T_B_S, cfg.backend,
                           oracle_of(gt_c) if args.oracle else None)
         out.update({f"clean_{k}": v for k, v in clean.items()})

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -86,23 +87,43 @@ def oracle_of(root: Path) -> dict[tuple[int, int], str | None]:
     return {(k, i): p.get("face_id") for k, planes in enumerate(gt.observations) for i, p in enumerate(planes)}
 
 
+@dataclass
+class Inputs:
+    """What a run reads before its first keyframe: the sequence's metadata, the BIM model
+    (its path and plane map) and the user's initial alignment."""
+
+    seq_dir: Path
+    meta: SequenceMeta
+    model: Path
+    plane_map: PlaneMap
+    initial: Alignment
+
+
+def load_inputs(seq_dir: Path, bim: Path | None, cfg: Config) -> Inputs:
+    """Load them once, so that the pipeline and a viewer following it share them."""
+    seq_dir = Path(seq_dir)
+    meta = load_meta(seq_dir)
+    model = model_path(seq_dir, meta, bim)
+    plane_map = load_model(model, cfg)
+    if not plane_map.faces:
+        raise InputError("the BIM model has no wall faces")
+    return Inputs(seq_dir, meta, model, plane_map, initial_alignment(meta, cfg))
+
+
 def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = None, config: Config | None = None,
         seeds: list[tuple[int, int, str]] = (), oracle: bool = False, listener: Listener | None = None,
-        progress: Callable[[int, int | None], None] | None = None) -> Results | None:
+        progress: Callable[[int, int | None], None] | None = None, inputs: Inputs | None = None) -> Results | None:
     """Run the backend on a sequence folder and write the outputs to `out_dir`. Online runs
-    read and process keyframe by keyframe, writing as they go; they return None."""
+    read and process keyframe by keyframe, writing as they go; they return None. `inputs`,
+    if given, are those of `load_inputs(seq_dir, bim, config)`."""
     cfg = config or Config()
     seq_dir = Path(seq_dir)
     if mode not in ("online", "offline"):
         raise ConfigError(f"mode {mode!r}: expected online or offline")
-    meta = load_meta(seq_dir)
-    model = model_path(seq_dir, meta, bim)
-    plane_map = load_model(model, cfg)
+    inputs = inputs or load_inputs(seq_dir, bim, cfg)
+    meta, plane_map, initial = inputs.meta, inputs.plane_map, inputs.initial
     # Absolute, so that `bimgraph view OUTDIR` finds them from anywhere.
-    inputs = {"sequence": str(seq_dir.resolve()), "model": str(Path(model).resolve())}
-    if not plane_map.faces:
-        raise InputError("the BIM model has no wall faces")
-    initial = initial_alignment(meta, cfg)
+    named = {"sequence": str(seq_dir.resolve()), "model": str(Path(inputs.model).resolve())}
     truth = oracle_of(seq_dir) if oracle else None
     if mode == "offline" or seeds:
         sequence = load_sequence(seq_dir)
@@ -110,14 +131,14 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
             initial = seed_alignment(sequence.keyframes, plane_map, list(seeds), cfg, initial)
     if mode == "offline":
         results = run_offline(sequence.keyframes, plane_map, cfg.backend, initial, listener, truth, deviations=cfg.deviations)
-        write_results(out_dir, results, inputs)
+        write_results(out_dir, results, named)
         write_deviation_outputs(out_dir, plane_map, results.observed_planes, results.T_B_S, results.T_B_C, meta.camera,
                                 cfg.deviations)
         return results
 
     keyframes = sequence.keyframes if seeds else iter_keyframes(seq_dir)
     backend = Backend(plane_map, cfg.backend, initial, listener, truth)
-    writer = OnlineWriter(out_dir, cfg.backend.write_every, inputs)
+    writer = OnlineWriter(out_dir, cfg.backend.write_every, named)
     start = time.perf_counter()
     try:
         for n, kf in enumerate(keyframes, start=1):

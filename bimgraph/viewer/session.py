@@ -106,15 +106,10 @@ def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | N
     return len(keyframes)
 
 
-def follow_run(seq_dir: Path, bim: Path | None, cfg: Config, rrd: Path | None = None, spawn: bool = False):
-    """(viewer, listener) for `bimgraph run --rrd/--spawn`: pass the listener to the
-    pipeline, and `finish(viewer, out_dir)` after it. The model is loaded here a second
-    time, as the pipeline does not hand out its own."""
-    from bimgraph.backend.pipeline import initial_alignment, load_model, model_path
-    from bimgraph.sequence.format import load_meta
+def follow_run(inputs, cfg: Config, rrd: Path | None = None, spawn: bool = False):
+    """(viewer, listener) for `bimgraph run --rrd/--spawn` on the pipeline's `Inputs`: pass
+    the listener to the pipeline, and `finish(viewer, out_dir)` after it."""
     from bimgraph.viewer.follow import RerunListener
 
-    meta = load_meta(seq_dir)
-    plane_map = load_model(model_path(seq_dir, meta, bim), cfg)
-    viewer = open_viewer(seq_dir, meta, plane_map, initial_alignment(meta, cfg).T_B_S, cfg, rrd, spawn)
-    return viewer, RerunListener(viewer, seq_dir)
+    viewer = open_viewer(inputs.seq_dir, inputs.meta, inputs.plane_map, inputs.initial.T_B_S, cfg, rrd, spawn)
+    return viewer, RerunListener(viewer, inputs.seq_dir)

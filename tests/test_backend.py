@@ -4,6 +4,7 @@ plane map, a camera circling each room, noisy plane observations, a drifting fro
 import gtsam
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from bimgraph.backend import (Alignment, BimAssociator, FaceIndex, Listener, align_from_seeds,
                               planes_in_B_independent, run_offline, run_online, unobservable_directions)
@@ -191,3 +192,23 @@ def test_align_from_seeds(cfg):
     assert {u["kind"] for u in corridor.unobservable} == {"rotation", "translation"}
     assert corridor.T_B_S[1, 3] == pytest.approx(T_B_S[1, 3], abs=0.02)
     assert np.sqrt(corridor.cov[3:, 3:].max()) > 0.1  # still the prior's uncertainty somewhere
+
+
+def test_levelled_alignment_keeps_heading_and_pins_tilt():
+    """Gravity-aligned S and z-up B: the hand alignment loses its tilt and keeps its heading
+    and position; the tilt's uncertainty drops to the gravity error, the rest stays."""
+    from bimgraph.backend.alignment import levelled
+
+    yaw, tilt = np.radians(30.0), np.radians(1.5)
+    T_B_S = make_pose(Rotation.from_rotvec([tilt, 0.0, 0.0]).as_matrix() @ Rotation.from_rotvec([0, 0, yaw]).as_matrix(),
+                      np.array([3.0, -2.0, 1.2]))
+    level = levelled(Alignment.from_sigmas(T_B_S, 2.0, 0.2), np.radians(0.1))
+    R = level.T_B_S[:3, :3]
+    np.testing.assert_allclose(R[:, 2], [0, 0, 1], atol=1e-12)
+    assert np.arctan2(R[1, 0], R[0, 0]) == pytest.approx(yaw, abs=np.radians(0.05))
+    np.testing.assert_allclose(level.T_B_S[:3, 3], T_B_S[:3, 3])
+    sigmas = np.sqrt(np.diag(level.cov))
+    np.testing.assert_allclose(np.degrees(sigmas[:2]), 0.1, rtol=0.01)
+    assert np.degrees(sigmas[2]) == pytest.approx(2.0)
+    np.testing.assert_allclose(sigmas[3:], 0.2)
+    assert level.gravity_aligned

@@ -3,9 +3,12 @@ the ground-truth floor in the table, one-line errors."""
 
 import json
 
+import numpy as np
+
 from typer.testing import CliRunner
 
 from bimgraph.cli import app
+from bimgraph.geometry import pose_from_tum
 
 
 def test_eval_writes_metrics_and_prints_every_method(tmp_path):
@@ -24,6 +27,10 @@ def test_eval_writes_metrics_and_prints_every_method(tmp_path):
     # The run corrects the drifting front-end: its ATE is below the manual alignment's.
     manual_ate = float(next(line for line in result.output.splitlines() if "manual" in line).split("│")[2])
     assert metrics["ate_m"] < manual_ate
+    # The simulated front-end is gravity-aligned: the extrinsic stays a turn about z (within
+    # the gravity error; as-built wall tilts and the drift would tilt it by tenths of a degree).
+    R_B_S = pose_from_tum(json.loads((out / "extrinsic.json").read_text())["T_B_S"])[:3, :3]
+    assert np.degrees(np.arccos(R_B_S[2, 2])) < 0.05
 
 
 def test_eval_of_a_missing_run_is_one_line(tmp_path):

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from bimgraph.backend.graph import E, L, X, FactorBuilder, cov_T_B_S, pose3, sigmas_cov
 from bimgraph.config import BackendConfig
@@ -28,11 +29,13 @@ _WEAK = 1e6  # variance factor of the prior in the directions the seeds observe
 
 @dataclass
 class Alignment:
-    """`T_B_S` and its 6x6 covariance (gtsam Pose3 tangent: rotation, then translation)."""
+    """`T_B_S` and its 6x6 covariance (gtsam Pose3 tangent: rotation, then translation);
+    `gravity_aligned` when S has z up, as B has."""
 
     T_B_S: np.ndarray
     cov: np.ndarray
     unobservable: list[dict] = field(default_factory=list)
+    gravity_aligned: bool = False
 
     @classmethod
     def from_sigmas(cls, T_B_S: np.ndarray, rot_deg: float, trans_m: float) -> "Alignment":
@@ -76,6 +79,19 @@ def lock_directions(alignment: Alignment, directions: list[dict], sigma_rot_rad:
         info += np.outer(u, u) / (sigma_rot_rad if rotation else sigma_trans_m) ** 2
     cov = np.linalg.inv(info)
     return 0.5 * (cov + cov.T)
+
+
+def levelled(alignment: Alignment, sigma_tilt_rad: float) -> Alignment:
+    """With S and B both z-up, `T_B_S` is a turn about z: the guess loses its tilt, and the
+    tilt is held to the front-end's gravity error. (A hand alignment's error is mostly yaw
+    and position; its tilt error would otherwise bias every wall's measured tilt.)"""
+    R = alignment.T_B_S[:3, :3]
+    T_B_S = make_pose(Rotation.from_rotvec([0.0, 0.0, np.arctan2(R[1, 0], R[0, 0])]).as_matrix(), alignment.T_B_S[:3, 3])
+    # levelled, S's x and y axes are the tilt axes: the first two of the right tangent
+    info = np.linalg.inv(alignment.cov)
+    info[[0, 1], [0, 1]] += 1.0 / sigma_tilt_rad**2
+    cov = np.linalg.inv(info)
+    return Alignment(T_B_S, 0.5 * (cov + cov.T), alignment.unobservable, True)
 
 
 def unlocked_covariance(alignment: Alignment, directions: list[dict]) -> np.ndarray:

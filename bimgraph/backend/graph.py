@@ -64,11 +64,18 @@ class FactorBuilder:
             sigmas_cov(np.radians(n.prior_first_pose_rot_deg), n.prior_first_pose_trans_m))
         self.default_odometry_cov = sigmas_cov(np.radians(n.odometry_rot_deg), n.odometry_trans_m)
         self.default_plane_cov = plane_cov(np.radians(n.plane_normal_deg), n.plane_offset_m)
+        self.gravity_noise = gtsam.noiseModel.Isotropic.Sigma(2, np.radians(n.gravity_deg))
         self.bim_noise = _robust(n.bim_kernel, n.bim_kernel_width, gtsam.noiseModel.Diagonal.Sigmas(
             [np.radians(n.bim_normal_deg)] * 2 + [n.bim_offset_m]))
 
     def first_pose(self, k: int, T_S_C: np.ndarray) -> gtsam.NonlinearFactor:
         return gtsam.PriorFactorPose3(X(k), pose3(T_S_C), self.first_pose_noise)
+
+    def gravity(self, k: int, T_S_C: np.ndarray) -> gtsam.NonlinearFactor:
+        """Keyframe k's up direction as the gravity-aligned front-end reports it: its tilt does
+        not drift, only its heading does."""
+        up_C = np.asarray(T_S_C)[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+        return gtsam.AttitudeFactorPose3(X(k), gtsam.Unit3(np.array([0.0, 0.0, 1.0])), self.gravity_noise, gtsam.Unit3(up_C))
 
     def odometry(self, k_prev: int, k: int, T_prev_k: np.ndarray, cov: np.ndarray | None) -> gtsam.NonlinearFactor:
         noise = gtsam.noiseModel.Gaussian.Covariance(self.default_odometry_cov if cov is None else np.asarray(cov))

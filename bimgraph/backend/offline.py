@@ -90,6 +90,9 @@ class OfflineEstimator:
         graph.add(build.first_pose(keyframes[0].index, keyframes[0].pose))
         for previous, kf in zip(keyframes, keyframes[1:]):
             graph.add(build.odometry(previous.index, kf.index, inverse(previous.pose) @ kf.pose, kf.cov))
+        if self.online.gravity_aligned:
+            for kf in keyframes[1:]:
+                graph.add(build.gravity(kf.index, kf.pose))
         for lm in self._active():
             for k, i in lm.observations:
                 obs = observations[k][i]

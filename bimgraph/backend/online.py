@@ -9,7 +9,7 @@ from collections.abc import Mapping
 import gtsam
 import numpy as np
 
-from bimgraph.backend.alignment import Alignment, lock_directions, unlocked_covariance, unobservable_directions
+from bimgraph.backend.alignment import Alignment, levelled, lock_directions, unlocked_covariance, unobservable_directions
 from bimgraph.backend.associate_bim import BimAssociator, FaceIndex, PlaneInB, plane_in_B
 from bimgraph.backend.associate_slam import Observation, SlamAssociator
 from bimgraph.backend.graph import E, L, X, IncrementalGraph, cov_T_B_S
@@ -59,6 +59,9 @@ class Backend:
         self.faces = FaceIndex(plane_map, cfg.bim_association)
         self.bim = BimAssociator(self.faces, cfg.bim_association)
         self.slam = SlamAssociator(cfg.slam_association)
+        self.gravity_aligned = initial.gravity_aligned
+        if initial.gravity_aligned:
+            initial = levelled(initial, np.radians(cfg.noise.gravity_deg))
         # directions no face of the map can observe keep the initial alignment
         self.never_observable = unobservable_directions(self.faces.planes[:, :3], cfg.unobservable_min_angle_deg)
         self.prior = Alignment(initial.T_B_S, lock_directions(initial, self.never_observable,
@@ -130,6 +133,8 @@ class Backend:
             T_prev_k = inverse(T_S_Cprev_frontend) @ kf.pose
             self.graph.add(self.build.odometry(k_prev, kf.index, T_prev_k, kf.cov))
             guess = T_S_Cprev @ T_prev_k
+            if self.gravity_aligned:  # (the first pose's prior holds its tilt already)
+                self.graph.add(self.build.gravity(kf.index, kf.pose))
         self.graph.insert_pose(kf.index, guess)
         return guess
 

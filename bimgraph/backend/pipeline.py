@@ -49,9 +49,12 @@ def initial_alignment(meta: SequenceMeta, cfg: Config) -> Alignment:
     """The sequence's manual alignment; identity with the configured (wide) uncertainty if none."""
     noise = cfg.backend.noise
     if meta.initial_alignment is None:
-        return Alignment.from_sigmas(np.eye(4), noise.extrinsic_rot_deg, noise.extrinsic_trans_m)
-    ia = meta.initial_alignment
-    return Alignment.from_sigmas(pose_from_tum(ia.T_B_S), ia.sigma_rot_deg, ia.sigma_trans_m)
+        alignment = Alignment.from_sigmas(np.eye(4), noise.extrinsic_rot_deg, noise.extrinsic_trans_m)
+    else:
+        ia = meta.initial_alignment
+        alignment = Alignment.from_sigmas(pose_from_tum(ia.T_B_S), ia.sigma_rot_deg, ia.sigma_trans_m)
+    alignment.gravity_aligned = meta.gravity_aligned
+    return alignment
 
 
 def parse_seed(text: str) -> tuple[int, int, str]:
@@ -76,7 +79,9 @@ def seed_alignment(keyframes: list[Keyframe], plane_map: PlaneMap, seeds: list[t
         kf = by_index[k]
         planes_S.append(plane_from_frame(normalise_plane(kf.planes[i].plane), kf.pose))
         planes_B.append(plane_map.faces[plane_map.index[face]].plane)
-    return align_from_seeds(np.array(planes_S), np.array(planes_B), cfg.backend, prior)
+    alignment = align_from_seeds(np.array(planes_S), np.array(planes_B), cfg.backend, prior)
+    alignment.gravity_aligned = prior.gravity_aligned
+    return alignment
 
 
 def oracle_of(root: Path) -> dict[tuple[int, int], str | None]:

@@ -143,7 +143,7 @@ class SequenceMeta(BaseModel):
     model: str | None = None
     camera: Camera | None = None
     sensor: Literal["planes", "depth", "external"] = "external"
-    gravity_aligned: bool = True
+    gravity_aligned: bool = False
     initial_alignment: InitialAlignment | None = None
     simulated: dict | None = None
 

@@ -308,6 +308,7 @@ class OfflineConfig(Section):
     max_rounds: int = Field(5, ge=1, description="optimise, re-associate, repeat at most this many times")
     max_iterations: int = Field(50, ge=1, description="Levenberg-Marquardt iterations per round")
     relative_error_tol: float = Field(1e-6, gt=0, description="Levenberg-Marquardt stops when the error improves less than this fraction")
+    merge_gate: float = Field(100.0, gt=0, description="two landmarks matched to one face merge unless their squared Mahalanobis distance as one plane exceeds this; far above the SLAM gate, since landmark covariances ignore the sensor's errors shared by neighbouring keyframes (measured: same wall up to 44, a board leaning on it 140 and more)")
     snoop_deviations: bool = Field(False, description="robust alignment: each round, unmatch the landmarks whose face deviates beyond the deviations tolerance (k sigma) from the alignment the other walls decide, so that only consistent walls pull the extrinsic")
 
 

@@ -13,7 +13,7 @@ from bimgraph.backend.landmarks import Landmark, LandmarkTable
 from bimgraph.backend.synthetic import make_scene
 from bimgraph.config import BackendConfig
 from bimgraph.evaluation.metrics import association_scores, ate, extrinsic_error
-from bimgraph.geometry import exp_se3, inverse, make_pose, normalise_plane, plane_from_frame
+from bimgraph.geometry import exp_se3, inverse, make_pose, normalise_plane, plane_from_frame, plane_to_frame
 from factors import local_plane_error
 
 
@@ -212,3 +212,30 @@ def test_levelled_alignment_keeps_heading_and_pins_tilt():
     assert np.degrees(sigmas[2]) == pytest.approx(2.0)
     np.testing.assert_allclose(sigmas[3:], 0.2)
     assert level.gravity_aligned
+
+
+def test_same_plane_d2_of_two_landmarks():
+    """Two landmarks as one plane: zero for one wall seen from two anchors, and an offset
+    apart by 3 sigma (of either landmark's offset, or of an anchor's position along the
+    normal) scores 9; one anchor for both takes the 3-key layout."""
+    from bimgraph.backend.associate_slam import same_plane_d2
+
+    rng = np.random.default_rng(2)
+    wall_S = normalise_plane(np.r_[1.0, 0.2, 0.0, -3.0])
+    T_S_A1, T_S_A2 = exp_se3(rng.normal(size=6)), exp_se3(rng.normal(size=6))
+    plane_1, plane_2 = plane_to_frame(wall_S, T_S_A1), plane_to_frame(wall_S, T_S_A2)
+    shifted_2 = plane_2 + np.r_[0, 0, 0, 0.03]
+    cov = np.eye(18) * 1e-12
+    assert same_plane_d2(plane_1, T_S_A1, plane_2, T_S_A2, cov + np.eye(18) * 1e-4) == pytest.approx(0.0, abs=1e-9)
+    for index in (14, 17):  # offset of landmark 2, of landmark 1
+        c = cov.copy()
+        c[index, index] = 0.01**2
+        assert same_plane_d2(plane_1, T_S_A1, shifted_2, T_S_A2, c) == pytest.approx(9.0, rel=1e-3)
+    # anchor 1's position along the wall normal (gtsam's translation is in the anchor's frame)
+    c = cov.copy()
+    u = np.r_[np.zeros(3), T_S_A1[:3, :3].T @ wall_S[:3]]
+    c[:6, :6] += np.outer(u, u) * 0.01**2
+    assert same_plane_d2(plane_1, T_S_A1, shifted_2, T_S_A2, c) == pytest.approx(9.0, rel=1e-3)
+    one_anchor = np.eye(12) * 1e-12
+    one_anchor[11, 11] = 0.01**2
+    assert same_plane_d2(plane_1, T_S_A1, plane_1 + np.r_[0, 0, 0, 0.03], T_S_A1, one_anchor) == pytest.approx(9.0, rel=1e-3)

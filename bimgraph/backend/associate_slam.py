@@ -19,6 +19,7 @@ from scipy.stats import chi2
 
 from bimgraph.backend.landmarks import LandmarkTable, hull_2d, to_plane_2d, transform_points
 from bimgraph.config import SlamAssociationConfig
+from factors.plane import predict_local_plane
 
 _INFEASIBLE = 1e12
 
@@ -53,6 +54,24 @@ def mahalanobis_to_landmarks(obs: Observation, T_S_C: np.ndarray, landmarks: Lan
     H[:, 2, 2] = -1.0
     S = H @ landmarks.covs_A[js] @ H.transpose(0, 2, 1) + obs.cov
     return np.einsum("ji,ji->j", e, np.linalg.solve(S, e[:, :, None])[:, :, 0])
+
+
+def same_plane_d2(plane_A1: np.ndarray, T_S_A1: np.ndarray, plane_A2: np.ndarray, T_S_A2: np.ndarray,
+                  joint_cov: np.ndarray) -> float:
+    """Squared Mahalanobis distance of two landmarks taken as one plane: landmark 2 seen from
+    landmark 1's anchor, against landmark 1 (the plane factor's residual), with the joint
+    marginal of (X_A1, X_A2, L2, L1), or of (X_A, L2, L1) when both have one anchor."""
+    plane_1 = gtsam.OrientedPlane3(plane_A1)
+    predicted, J4 = predict_local_plane(gtsam.Pose3(T_S_A1), gtsam.Pose3(T_S_A2), gtsam.OrientedPlane3(plane_A2), jacobian=True)
+    B_1 = plane_1.normal().basis()
+    e = np.r_[B_1.T @ predicted[:3], predicted[3] - plane_A1[3]]
+    M = np.zeros((3, 4))
+    M[:2, :3], M[2, 3] = B_1.T, 1.0
+    J = np.hstack([M @ J4, -np.eye(3)])  # moving landmark 1 along its own basis moves e by -delta
+    if len(joint_cov) == 12:  # one anchor: its two column blocks act together
+        J = np.hstack([J[:, :6] + J[:, 6:12], J[:, 12:]])
+    S = J @ joint_cov @ J.T
+    return float(e @ np.linalg.solve(S, e))
 
 
 def extent_gap(obs: Observation, T_A_C: np.ndarray, lm) -> float:

@@ -26,7 +26,8 @@ from bimgraph.backend.alignment import Alignment, unobservable_directions
 from bimgraph.backend.associate_bim import PlaneInB, plane_in_B
 from bimgraph.backend.graph import E, L, X, cov_T_B_S, pose3
 from bimgraph.backend.landmarks import Landmark, transform_points
-from bimgraph.backend.online import Backend, Oracle, observations_of, revision_reason, unmatch
+from bimgraph.backend.associate_slam import same_plane_d2
+from bimgraph.backend.online import Backend, Oracle, misfit, observations_of, revision_reason, unmatch
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig, DeviationConfig
@@ -43,6 +44,7 @@ class OfflineEstimator:
         self.plane_map = plane_map
         self.deviations = deviations or DeviationConfig()
         self.snooped: set[tuple[int, str]] = set()  # (landmark, face) pairs snooping took apart
+        self.apart: set[tuple[int, str]] = set()  # (landmark, face) pairs merging found not one plane
         self.listener = listener or Listener()
         # the causal pass reports nothing: the listener hears the smoothed results
         self.online = Backend(plane_map, cfg, initial, None, oracle, covariance=False)
@@ -72,7 +74,7 @@ class OfflineEstimator:
             self._refresh(values)
             changed = self.oracle is None and rounds <= self.cfg.offline.max_rounds and (
                 self._revise(values) | self._snoop(values, marginals) | self._associate(values, marginals)
-                | self._split(values) | self._merge(values))
+                | self._merge(values, marginals) | self._split(values))
             t_assoc += time.perf_counter() - t1
             if not changed:
                 break
@@ -133,22 +135,42 @@ class OfflineEstimator:
             split = True
         return split
 
-    def _merge(self, values: gtsam.Values) -> bool:
-        """Landmarks matched to one BIM face are one plane: the oldest absorbs the others.
-        (Coplanar sections of a wall stay apart: built, they may differ.)"""
+    def _merge(self, values: gtsam.Values, marginals: gtsam.Marginals) -> bool:
+        """Landmarks matched to one BIM face are one plane: the oldest absorbs the others, if
+        they pass `offline.merge_gate` as one plane. Two that do not are not both that wall (a board
+        leaning on it, a cabinet's front): the one farther from the face loses the match and
+        stays apart from it. (Coplanar sections of a wall stay apart: built, they may differ.)"""
         by_face: dict[str, list] = {}
         for lm in self._active():
             if lm.face is not None:
                 by_face.setdefault(lm.face, []).append(lm)
-        merged = False
-        for same in by_face.values():
+        changed = False
+        for face, same in by_face.items():
             keep = min(same, key=lambda lm: (lm.anchor, lm.id))
-            for other in same:
-                if other is not keep:
+            for other in (lm for lm in same if lm is not keep):
+                changed = True
+                if self._one_plane(keep, other, marginals):
                     keep.absorb(other, self.cfg.slam_association.extent_max_points)
                     values.erase(L(other.id))
-                    merged = True
-        return merged
+                    continue
+                worse = max((keep, other), key=lambda lm: self._face_misfit(lm, values.atPose3(E)))
+                self.apart.add((worse.id, face))
+                unmatch(worse, "not one plane with another landmark of its face", self.listener)
+                break  # the face's other landmarks meet the one left next round
+        return changed
+
+    def _one_plane(self, a: Landmark, b: Landmark, marginals: gtsam.Marginals) -> bool:
+        keys = [X(a.anchor)] + ([X(b.anchor)] if b.anchor != a.anchor else []) + [L(b.id), L(a.id)]
+        joint = marginals.jointMarginalCovariance(keys)
+        cov = np.block([[joint.at(i, j) for j in keys] for i in keys])
+        return same_plane_d2(a.plane_A, a.T_S_A, b.plane_A, b.T_S_A, cov) <= self.cfg.offline.merge_gate
+
+    def _face_misfit(self, lm: Landmark, T_S_B: gtsam.Pose3) -> float:
+        """How far the landmark is from its face, in units of the as-built tolerance."""
+        plane_B = predict_local_plane(T_S_B, pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A))
+        angle, offset = misfit(plane_B, self.faces.planes[self.faces.row[lm.face]])
+        cfg = self.cfg.bim_association
+        return (angle / cfg.face_normal_deg) ** 2 + (offset / cfg.face_offset_m) ** 2
 
     def _observed_planes(self, values, marginals) -> list:
         """Every active landmark as the deviation step reads it; a matched landmark's plane-to-BIM
@@ -237,8 +259,8 @@ class OfflineEstimator:
             cov = np.block([[joint.at(a, b) for b in keys] for a in keys])
             plane_B, cov_B = plane_in_B(T_S_B, pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A), cov)
             candidates.append(PlaneInB(lm.id, plane_B, cov_B, lm.extent_in(T_B_S), lm.area))
-        # a face snooping took a landmark off would only pull it back: it stays apart
-        matches = [m for m in self.bim.match(candidates) if (m.landmark, m.face) not in self.snooped]
+        # a face snooping or merging took a landmark off would only pull it back: it stays apart
+        matches = [m for m in self.bim.match(candidates) if (m.landmark, m.face) not in self.snooped | self.apart]
         for m in matches:
             lm = self.landmarks[m.landmark]
             lm.face, lm.score = m.face, m.score

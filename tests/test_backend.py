@@ -106,6 +106,10 @@ def test_unobservable_directions():
     # nearly parallel normals (5 deg apart) do not count as independent
     near = unobservable_directions([[1, 0, 0], [np.cos(0.087), np.sin(0.087), 0], [0, 0, 1]], 10.0)
     assert any(u["kind"] == "translation" for u in near)
+    # a corridor's turn about its axis is a tilt: gravity observes it
+    corridor = unobservable_directions([[1, 0, 0], [-1, 0, 0]], 10.0, gravity=True)
+    assert {(u["kind"], tuple(np.abs(u["axis_B"]))) for u in corridor} == {
+        ("translation", (0.0, 1.0, 0.0)), ("translation", (0.0, 0.0, 1.0))}
 
 
 def test_slam_gate_is_the_plane_factor_residual():

@@ -42,14 +42,15 @@ class Alignment:
         return cls(np.asarray(T_B_S, dtype=float), sigmas_cov(np.radians(rot_deg), trans_m))
 
 
-def unobservable_directions(normals_B: np.ndarray, min_angle_deg: float) -> list[dict]:
+def unobservable_directions(normals_B: np.ndarray, min_angle_deg: float, gravity: bool = False) -> list[dict]:
     """Directions of `T_B_S` (rotation axes and translations, in B) that faces with these
     normals do not fix: where fewer than enough normals leave the plane orthogonal to the
-    direction by at least `min_angle_deg`."""
+    direction by at least `min_angle_deg`. With `gravity` (a gravity-aligned S), rotations
+    about horizontal axes are fixed by the front-end's up direction."""
     normals_B = np.asarray(normals_B, dtype=float).reshape(-1, 3)
     weight = np.sin(np.radians(min_angle_deg)) ** 2
     info_t = normals_B.T @ normals_B
-    info_r = len(normals_B) * np.eye(3) - info_t
+    info_r = len(normals_B) * np.eye(3) - info_t + (np.diag([1.0, 1.0, 0.0]) if gravity else 0.0)
     out = []
     for kind, info in (("rotation", info_r), ("translation", info_t)):
         values, vectors = np.linalg.eigh(info)

@@ -22,7 +22,7 @@ from collections import Counter
 import gtsam
 import numpy as np
 
-from bimgraph.backend.alignment import Alignment, unobservable_directions
+from bimgraph.backend.alignment import Alignment
 from bimgraph.backend.associate_bim import PlaneInB, plane_in_B
 from bimgraph.backend.graph import E, L, X, cov_T_B_S, pose3
 from bimgraph.backend.landmarks import Landmark, transform_points
@@ -202,7 +202,7 @@ class OfflineEstimator:
         normals = self.faces.planes[[self.faces.row[f] for f in faces], :3] if faces else np.zeros((0, 3))
         return Results(mode="offline", indices=[kf.index for kf in keyframes], stamps=[kf.stamp for kf in keyframes],
                        T_S_C=T_S_C, T_B_C=[T_B_S @ p for p in T_S_C], T_B_S=T_B_S, cov_T_B_S=cov,
-                       unobservable=unobservable_directions(normals, self.cfg.unobservable_min_angle_deg),
+                       unobservable=self.online.unobservable_with(normals),
                        landmarks=self._active(), timings=timings, rounds=rounds, observed_planes=planes)
 
     def _refresh(self, values: gtsam.Values) -> None:

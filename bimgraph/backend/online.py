@@ -62,8 +62,8 @@ class Backend:
         self.gravity_aligned = initial.gravity_aligned
         if initial.gravity_aligned:
             initial = levelled(initial, np.radians(cfg.noise.gravity_deg))
-        # directions no face of the map can observe keep the initial alignment
-        self.never_observable = unobservable_directions(self.faces.planes[:, :3], cfg.unobservable_min_angle_deg)
+        # directions neither the faces of the map nor gravity can observe keep the initial alignment
+        self.never_observable = self.unobservable_with(self.faces.planes[:, :3])
         self.prior = Alignment(initial.T_B_S, lock_directions(initial, self.never_observable,
                                                               np.radians(cfg.lock_rot_deg), cfg.lock_trans_m))
         self.locked_cov = unlocked_covariance(initial, self.never_observable)
@@ -120,8 +120,12 @@ class Backend:
 
     def unobservable(self) -> list[dict]:
         faces = {lm.face for lm in self.landmarks.items if lm.face is not None}
-        normals = self.faces.planes[[self.faces.row[f] for f in sorted(faces)], :3] if faces else np.zeros((0, 3))
-        return unobservable_directions(normals, self.cfg.unobservable_min_angle_deg)
+        return self.unobservable_with(self.faces.planes[[self.faces.row[f] for f in sorted(faces)], :3] if faces else np.zeros((0, 3)))
+
+    def unobservable_with(self, normals_B: np.ndarray) -> list[dict]:
+        """Directions of `T_B_S` that faces with these normals (and gravity, if the sequence
+        is gravity-aligned) leave unobserved."""
+        return unobservable_directions(normals_B, self.cfg.unobservable_min_angle_deg, self.gravity_aligned)
 
     # -- pieces -----------------------------------------------------------------------------
     def _add_pose(self, kf: Keyframe) -> np.ndarray:

@@ -187,6 +187,25 @@ def test_same_seed_same_bytes(tmp_path):
     assert (a / "keyframes.jsonl").read_bytes() != (c / "keyframes.jsonl").read_bytes()
 
 
+def test_offsets_change_nothing_but_the_walls(tmp_path):
+    """The same site with and without moved faces: the same missing walls, clutter and walk
+    (what issue 8's "same scenario without deviations" compares against)."""
+    runs = {}
+    for name, fraction in (("moved", 0.4), ("level", 0.0)):
+        cfg = Config()
+        cfg.sim.as_built_site = cfg.sim.as_built_site.model_copy(update={"offset_fraction": fraction})
+        simulate(SimOptions(output=tmp_path / name, scenario="site", keyframes=30, seed=2), cfg)
+        runs[name] = load_groundtruth(tmp_path / name)
+    moved, level = runs["moved"], runs["level"]
+    np.testing.assert_array_equal(moved.T_B_C, level.T_B_C)
+    faces_m, faces_l = moved.as_built["faces"], level.as_built["faces"]
+    assert [f["built"] for f in faces_m] == [f["built"] for f in faces_l]
+    assert [f["tilt_deg"] for f in faces_m] == [f["tilt_deg"] for f in faces_l]
+    assert sum(f["offset_m"] != 0 for f in faces_m) > 0 == sum(f["offset_m"] != 0 for f in faces_l)
+    clutter = [[e["name"], e["plane"]] for e in moved.as_built["elements"] if e["kind"] != "wall"]
+    assert clutter == [[e["name"], e["plane"]] for e in level.as_built["elements"] if e["kind"] != "wall"]
+
+
 @pytest.mark.parametrize("gravity_aligned", [True, False])
 def test_drift_matches_configured_rates(office, gravity_aligned):
     root, _ = office

@@ -111,7 +111,9 @@ def detect(depth: np.ndarray, ids: np.ndarray, coarse: Camera, T_B_C: np.ndarray
         # A detector sometimes breaks one surface into two planes.
         pieces = [part]
         if part.area >= 2 * cfg.min_area_m2 and rng.random() < cfg.oversegment_probability:
-            pieces = split_in_two(part)
+            # a cut through the centroid of an odd shape can leave a piece below the minimum:
+            # the detector would not report it
+            pieces = [p for p in split_in_two(part) if p.area >= cfg.min_area_m2] or [part]
         for piece in pieces:
             observation = _observe(piece, element, plane_C, T_B_C, round(count * pixel_area * piece.area / part.area), cfg, rng)
             detections.append(Detection(observation, e, plane_C))

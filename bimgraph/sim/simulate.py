@@ -157,13 +157,17 @@ def simulate(opts: SimOptions, cfg: Config, log: Callable[[str], None] = lambda 
     inside = occupancy.inside(grid, planned_walls, storey.floor_z, storey.floors)
     if not inside.any():
         raise InputError(f"{model_path.name}: storey {storey.name!r} has no room enclosed by walls")
-    items = clutter.furnish(built, storey.floor_z, grid, inside, KINDS[scenario or "ifc"], as_built_cfg,
+    # Clutter is placed, and the walk planned, in the world as planned less the walls not built:
+    # the same scenario with and without offsets and tilts then has the same clutter and walk.
+    missing = {d.face_id for d in deviations if not d.built}
+    level = [e for e in planned if e.face_id is None or e.face_id not in missing]
+    items = clutter.furnish(level, storey.floor_z, grid, inside, KINDS[scenario or "ifc"], as_built_cfg,
                             sim.trajectory.clearance_m, rng_clutter)
     elements = built + items
     mesh = world.triangulate(elements)
     lap("world")
 
-    occupied = occupancy.obstacles(grid, mesh, storey.floor_z)
+    occupied = occupancy.obstacles(grid, world.triangulate(level + items), storey.floor_z)
     free, distance = occupancy.free_space(occupied, inside, grid.cell, sim.trajectory.clearance_m)
     walk = plan_trajectory(free, distance, grid, storey.floor_z, sim.trajectory, opts.keyframes, rng_walk)
     front = simulate_frontend(walk.T_B_C, sim.frontend, rng_frontend)

@@ -138,16 +138,17 @@ def deviate(elements: list[Element], walls_by_guid: dict[str, str], cfg: AsBuilt
     faces = [e for e in elements if e.kind == "wall"]
     guids = sorted({walls_by_guid[e.face_id] for e in faces})
     n_missing = min(int(round(cfg.missing_wall_fraction * len(guids))), len(guids) - 1)
-    missing = set(rng.choice(guids, size=n_missing, replace=False).tolist()) if n_missing else set()
+    missing = set(rng.permutation(guids)[:n_missing].tolist())
     out, deviations = [], []
     for e in elements:
         if e.kind != "wall":
             out.append(e)
             continue
-        offset = 0.0
-        if rng.random() < cfg.offset_fraction:
-            offset = rng.uniform(cfg.offset_min_m, cfg.offset_max_m) * rng.choice([-1.0, 1.0])
-        tilt = rng.uniform(-cfg.tilt_max_deg, cfg.tilt_max_deg) if rng.random() < cfg.tilt_fraction else 0.0
+        # every face draws alike whatever the fractions, so that a scenario with and without
+        # offsets (or tilts) differs in those alone
+        moved, size, sign, tilted, angle = rng.random(), rng.random(), rng.choice([-1.0, 1.0]), rng.random(), rng.random()
+        offset = sign * (cfg.offset_min_m + size * (cfg.offset_max_m - cfg.offset_min_m)) if moved < cfg.offset_fraction else 0.0
+        tilt = cfg.tilt_max_deg * (2.0 * angle - 1.0) if tilted < cfg.tilt_fraction else 0.0
         n = e.plane[:3]
         axis = plane_basis(n)[:, 0]
         centre = e.polygon.mean(axis=0)

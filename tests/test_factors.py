@@ -186,3 +186,31 @@ def test_gravity_factor_measures_tilt_not_heading(seed):
     h = 1e-6
     numerical = np.column_stack([(error(at.retract(h * e)) - error(at.retract(-h * e))) / (2 * h) for e in np.eye(6)])
     np.testing.assert_allclose(A * sigma, numerical, atol=1e-7)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_face_tolerance_is_about_the_face_centre(seed):
+    """The plane-to-BIM noise: mapped to (offset at the face centre, two tilts), as the
+    deviation report reads a residual, it is the configured tolerance, wherever the face lies
+    from B's origin; and a plane turned about the face centre within the tolerance scores as
+    little as one turned about the origin's foot does for a face through the origin."""
+    from bimgraph.bim.planemap import BimFace
+    from bimgraph.deviations.estimate import deviation_terms
+    from factors import face_tolerance_cov
+
+    rng = np.random.default_rng(seed)
+    n = normalise_plane(np.r_[rng.normal(size=2), 0.0, 0.0])[:3]
+    centre = rng.normal(size=3) * 15.0
+    plane = np.r_[n, -n @ centre]
+    basis = gtsam.Unit3(n).basis()
+    face = BimFace(id="f/0", wall_guid="f", normal=tuple(n), offset=float(plane[3]),
+                   polygon=[tuple(centre), tuple(centre + basis[:, 0]), tuple(centre + basis[:, 1])], area=1.0,
+                   centre=tuple(centre))
+    cov = face_tolerance_cov(basis, centre, 0.01, 0.02)
+    _, H = deviation_terms(np.zeros(3), face)
+    np.testing.assert_allclose(H @ cov @ H.T, np.diag([0.02**2, 0.01**2, 0.01**2]), atol=1e-12)
+    # a built plane turned by 0.01 rad about a vertical axis through the face centre
+    turned = gtsam.Rot3.Rz(0.01).matrix() @ n
+    built = np.r_[turned, -turned @ centre]
+    e = np.r_[basis.T @ built[:3], plane[3] - built[3]]
+    assert e @ np.linalg.solve(cov, e) == pytest.approx(1.0, rel=0.01)  # first order in the angle

@@ -116,9 +116,10 @@ def _rotation_from_normals(normals_S: np.ndarray, normals_B: np.ndarray, R_prior
 
 
 def align_from_seeds(planes_S: np.ndarray, planes_B: np.ndarray, cfg: BackendConfig,
-                     prior: Alignment | None = None) -> Alignment:
-    """`T_B_S` from seed pairs (plane in S, BIM face plane in B), its covariance, and the
-    directions the seeds leave unobservable (which keep the prior's uncertainty)."""
+                     prior: Alignment | None = None, centres_B: np.ndarray | None = None) -> Alignment:
+    """`T_B_S` from seed pairs (plane in S, BIM face plane in B, with the faces' centres if
+    known), its covariance, and the directions the seeds leave unobservable (which keep the
+    prior's uncertainty)."""
     planes_S, planes_B = np.asarray(planes_S, float).reshape(-1, 4), np.asarray(planes_B, float).reshape(-1, 4)
     if len(planes_S) == 0 or len(planes_S) != len(planes_B):
         raise InputError(f"seed alignment needs pairs of planes, got {len(planes_S)} and {len(planes_B)}")
@@ -145,7 +146,7 @@ def align_from_seeds(planes_S: np.ndarray, planes_B: np.ndarray, cfg: BackendCon
     fixed = np.eye(3) * 1e-12
     for j, (plane_S, plane_B) in enumerate(zip(planes_S, planes_B)):
         graph.add(build.anchor_observation(j, plane_S, fixed))
-        graph.add(build.bim(0, j, plane_B))
+        graph.add(build.bim(0, j, plane_B, None if centres_B is None else centres_B[j]))
         values.insert(L(j), gtsam.OrientedPlane3(plane_S))
     result = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
     T_S_B = result.atPose3(E)

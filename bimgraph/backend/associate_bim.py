@@ -27,7 +27,7 @@ from bimgraph.backend.graph import extrinsic_cov_E, pose3
 from bimgraph.backend.landmarks import hull_2d, plane_basis
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BimAssociationConfig
-from factors.plane import predict_local_plane
+from factors.plane import face_tolerance_cov, predict_local_plane
 
 _INFEASIBLE = 1e12
 
@@ -61,6 +61,7 @@ class FaceIndex:
         self.ids = [f.id for f in self.faces]
         self.row = {face_id: i for i, face_id in enumerate(self.ids)}
         self.planes = plane_map.planes
+        self.centres = np.array([f.centre for f in self.faces], dtype=float).reshape(-1, 3)
         self.bases = np.array([plane_basis(p[:3]) for p in self.planes]).reshape(-1, 3, 2)
         # e = D_f (n, d) + (0, 0, d_f): D_f = [[B_f^T, 0], [0, -1]]
         self.D = np.zeros((len(self.faces), 3, 4))
@@ -115,7 +116,9 @@ class BimAssociator:
         self.cfg = cfg
         self.gate = chi2.ppf(cfg.gate_probability, 3)
         self.cos_max = np.cos(np.radians(cfg.max_normal_angle_deg))
-        self.tolerance = np.diag([np.radians(cfg.face_normal_deg) ** 2] * 2 + [cfg.face_offset_m**2])
+        # the as-built tolerance about each face's centre, in the residual of that face
+        self.tolerance = np.array([face_tolerance_cov(basis, centre, np.radians(cfg.face_normal_deg), cfg.face_offset_m)
+                                   for basis, centre in zip(faces.bases, faces.centres)]).reshape(-1, 3, 3)
 
     def eligible(self, area: float, n_observations: int, last_attempt: int = 0) -> bool:
         """Worth matching: big enough, seen often enough, and seen more since the last try (a
@@ -131,7 +134,7 @@ class BimAssociator:
             return {}
         e = faces.residuals(c.plane_B, rows)
         D = faces.D[rows]
-        S = D @ c.cov_B @ D.transpose(0, 2, 1) + self.tolerance
+        S = D @ c.cov_B @ D.transpose(0, 2, 1) + self.tolerance[rows]
         d2 = np.einsum("ki,ki->k", e, np.linalg.solve(S, e[:, :, None])[:, :, 0])
         out = {}
         for row, score in zip(rows[d2 <= self.gate], d2[d2 <= self.gate]):

@@ -16,7 +16,7 @@ import gtsam
 import numpy as np
 
 from bimgraph.config import BackendConfig
-from factors import local_plane_factor, plane_prior_factor, plane_to_bim_factor
+from factors import face_tolerance_cov, local_plane_factor, plane_prior_factor, plane_to_bim_factor
 
 X = gtsam.symbol_shorthand.X
 L = gtsam.symbol_shorthand.L
@@ -65,8 +65,6 @@ class FactorBuilder:
         self.default_odometry_cov = sigmas_cov(np.radians(n.odometry_rot_deg), n.odometry_trans_m)
         self.default_plane_cov = plane_cov(np.radians(n.plane_normal_deg), n.plane_offset_m)
         self.gravity_noise = gtsam.noiseModel.Isotropic.Sigma(2, np.radians(n.gravity_deg))
-        self.bim_noise = _robust(n.bim_kernel, n.bim_kernel_width, gtsam.noiseModel.Diagonal.Sigmas(
-            [np.radians(n.bim_normal_deg)] * 2 + [n.bim_offset_m]))
 
     def first_pose(self, k: int, T_S_C: np.ndarray) -> gtsam.NonlinearFactor:
         return gtsam.PriorFactorPose3(X(k), pose3(T_S_C), self.first_pose_noise)
@@ -92,8 +90,14 @@ class FactorBuilder:
         noise = _robust(n.plane_kernel, n.plane_kernel_width, self.plane_noise(cov))
         return local_plane_factor(plane_C, noise, X(k), X(anchor), L(j))
 
-    def bim(self, anchor: int, j: int, plane_B: np.ndarray) -> gtsam.NonlinearFactor:
-        return plane_to_bim_factor(plane_B, self.bim_noise, E, X(anchor), L(j))
+    def bim(self, anchor: int, j: int, plane_B: np.ndarray, centre_B: np.ndarray | None) -> gtsam.NonlinearFactor:
+        """Landmark j (anchored at `anchor`) is the face `plane_B`, within the as-built
+        tolerance about the face's centre `centre_B`."""
+        n = self.cfg.noise
+        basis = gtsam.Unit3(np.asarray(plane_B[:3], dtype=float)).basis()
+        cov = face_tolerance_cov(basis, centre_B, np.radians(n.bim_normal_deg), n.bim_offset_m)
+        noise = _robust(n.bim_kernel, n.bim_kernel_width, gtsam.noiseModel.Gaussian.Covariance(cov))
+        return plane_to_bim_factor(plane_B, noise, E, X(anchor), L(j))
 
     def extrinsic_prior(self, T_B_S: np.ndarray, cov_T_B_S_: np.ndarray) -> gtsam.NonlinearFactor:
         noise = gtsam.noiseModel.Gaussian.Covariance(extrinsic_cov_E(T_B_S, cov_T_B_S_))
@@ -133,11 +137,11 @@ class IncrementalGraph:
     def insert_plane(self, j: int, plane: np.ndarray) -> None:
         self._values.insert(L(j), gtsam.OrientedPlane3(plane))
 
-    def add_bim(self, j: int, anchor: int, plane_B: np.ndarray) -> None:
+    def add_bim(self, j: int, anchor: int, plane_B: np.ndarray, centre_B: np.ndarray) -> None:
         if j in self.bim_index or j in self._bim_queue:
             raise ValueError(f"landmark {j} already has a plane-to-BIM factor")
         self._bim_queue.append((j, self._factors.size()))
-        self._factors.add(self.build.bim(anchor, j, plane_B))
+        self._factors.add(self.build.bim(anchor, j, plane_B, centre_B))
 
     def remove_bim(self, j: int) -> None:
         self._remove.append(self.bim_index.pop(j))

@@ -168,7 +168,8 @@ class OfflineEstimator:
     def _face_misfit(self, lm: Landmark, T_S_B: gtsam.Pose3) -> float:
         """How far the landmark is from its face, in units of the as-built tolerance."""
         plane_B = predict_local_plane(T_S_B, pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A))
-        angle, offset = misfit(plane_B, self.faces.planes[self.faces.row[lm.face]])
+        row = self.faces.row[lm.face]
+        angle, offset = misfit(plane_B, self.faces.planes[row], self.faces.centres[row])
         cfg = self.cfg.bim_association
         return (angle / cfg.face_normal_deg) ** 2 + (offset / cfg.face_offset_m) ** 2
 
@@ -211,7 +212,8 @@ class OfflineEstimator:
                                         values.atPose3(X(lm.anchor)).matrix())
 
     def _bim_factor(self, lm) -> gtsam.NonlinearFactor:
-        return self.online.build.bim(lm.anchor, lm.id, self.faces.planes[self.faces.row[lm.face]])
+        row = self.faces.row[lm.face]
+        return self.online.build.bim(lm.anchor, lm.id, self.faces.planes[row], self.faces.centres[row])
 
     def _revise(self, values: gtsam.Values) -> bool:
         changed = False
@@ -220,7 +222,7 @@ class OfflineEstimator:
             if lm.face is None:
                 continue
             plane_B = predict_local_plane(T_S_B, pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A))
-            reason = revision_reason(plane_B, self.faces.planes[self.faces.row[lm.face]], self.cfg.bim_association)
+            reason = revision_reason(plane_B, self.faces, lm.face, self.cfg.bim_association)
             if reason is not None:
                 unmatch(lm, reason, self.listener)
                 changed = True

@@ -29,15 +29,17 @@ def observations_of(kf: Keyframe, default_cov: np.ndarray) -> list[Observation]:
                         observation_points(p.polygon, p.centre), p.area) for i, p in enumerate(kf.planes)]
 
 
-def misfit(plane_B: np.ndarray, face_plane: np.ndarray) -> tuple[float, float]:
-    """How far a plane in B is from a face plane: (angle in degrees, offset in metres)."""
+def misfit(plane_B: np.ndarray, face_plane: np.ndarray, centre_B: np.ndarray) -> tuple[float, float]:
+    """How far a plane in B is from a face: (angle in degrees, distance in metres of the face's
+    centre from the plane)."""
     angle = float(np.degrees(np.arccos(np.clip(plane_B[:3] @ face_plane[:3], -1.0, 1.0))))
-    return angle, abs(float(plane_B[3] - face_plane[3]))
+    return angle, abs(float(plane_B[:3] @ centre_B + plane_B[3]))
 
 
-def revision_reason(plane_B: np.ndarray, face_plane: np.ndarray, cfg) -> str | None:
-    """Why a matched landmark no longer fits its face, or None if it does."""
-    angle, offset = misfit(plane_B, face_plane)
+def revision_reason(plane_B: np.ndarray, faces: FaceIndex, face: str, cfg) -> str | None:
+    """Why a landmark matched to `face` no longer fits it, or None if it does."""
+    row = faces.row[face]
+    angle, offset = misfit(plane_B, faces.planes[row], faces.centres[row])
     if angle > cfg.revision_normal_deg:
         return f"normal {angle:.1f} deg off"
     if offset > cfg.revision_offset_m:
@@ -193,7 +195,7 @@ class Backend:
     def _set_face(self, j: int, face: str, score: float) -> None:
         lm = self.landmarks[j]
         lm.face, lm.score = face, score
-        self.graph.add_bim(j, lm.anchor, self.faces.planes[self.faces.row[face]])
+        self.graph.add_bim(j, lm.anchor, self.faces.planes[self.faces.row[face]], self.faces.centres[self.faces.row[face]])
         self.listener.on_association(j, face, score)
 
     def _revise(self, observed: list[int], T_S_B: gtsam.Pose3) -> bool:
@@ -205,7 +207,7 @@ class Backend:
             if lm.face is None:
                 continue
             plane_B = predict_local_plane(T_S_B, gtsam.Pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A))
-            reason = revision_reason(plane_B, self.faces.planes[self.faces.row[lm.face]], self.cfg.bim_association)
+            reason = revision_reason(plane_B, self.faces, lm.face, self.cfg.bim_association)
             if reason is not None:
                 self._unmatch(lm, reason)
                 changed = True

@@ -70,7 +70,7 @@ def seed_alignment(keyframes: list[Keyframe], plane_map: PlaneMap, seeds: list[t
                    cfg: Config, prior: Alignment) -> Alignment:
     """Plane registration of seed pairs (keyframe, plane index, BIM face id)."""
     by_index = {kf.index: kf for kf in keyframes}
-    planes_S, planes_B = [], []
+    planes_S, planes_B, centres_B = [], [], []
     for k, i, face in seeds:
         if k not in by_index or i >= len(by_index[k].planes):
             raise ConfigError(f"seed {k}:{i}:{face}: no plane {i} in keyframe {k}")
@@ -79,7 +79,8 @@ def seed_alignment(keyframes: list[Keyframe], plane_map: PlaneMap, seeds: list[t
         kf = by_index[k]
         planes_S.append(plane_from_frame(normalise_plane(kf.planes[i].plane), kf.pose))
         planes_B.append(plane_map.faces[plane_map.index[face]].plane)
-    alignment = align_from_seeds(np.array(planes_S), np.array(planes_B), cfg.backend, prior)
+        centres_B.append(plane_map.faces[plane_map.index[face]].centre)
+    alignment = align_from_seeds(np.array(planes_S), np.array(planes_B), cfg.backend, prior, np.array(centres_B))
     alignment.gravity_aligned = prior.gravity_aligned
     return alignment
 

@@ -19,7 +19,7 @@ from scipy.stats import chi2
 
 from bimgraph.backend.landmarks import LandmarkTable, hull_2d, to_plane_2d, transform_points
 from bimgraph.config import SlamAssociationConfig
-from factors.plane import predict_local_plane
+from factors.plane import local_plane_error
 
 _INFEASIBLE = 1e12
 
@@ -61,15 +61,11 @@ def same_plane_d2(plane_A1: np.ndarray, T_S_A1: np.ndarray, plane_A2: np.ndarray
     """Squared Mahalanobis distance of two landmarks taken as one plane: landmark 2 seen from
     landmark 1's anchor, against landmark 1 (the plane factor's residual), with the joint
     marginal of (X_A1, X_A2, L2, L1), or of (X_A, L2, L1) when both have one anchor."""
-    plane_1 = gtsam.OrientedPlane3(plane_A1)
-    predicted, J4 = predict_local_plane(gtsam.Pose3(T_S_A1), gtsam.Pose3(T_S_A2), gtsam.OrientedPlane3(plane_A2), jacobian=True)
-    B_1 = plane_1.normal().basis()
-    e = np.r_[B_1.T @ predicted[:3], predicted[3] - plane_A1[3]]
-    M = np.zeros((3, 4))
-    M[:2, :3], M[2, 3] = B_1.T, 1.0
-    J = np.hstack([M @ J4, -np.eye(3)])  # moving landmark 1 along its own basis moves e by -delta
-    if len(joint_cov) == 12:  # one anchor: its two column blocks act together
-        J = np.hstack([J[:, :6] + J[:, 6:12], J[:, 12:]])
+    e, (H_1, H_2, H_L2) = local_plane_error(gtsam.Pose3(T_S_A1), gtsam.Pose3(T_S_A2), gtsam.OrientedPlane3(plane_A2),
+                                            plane_A1, jacobians=True)
+    # landmark 1 is the residual's measurement: moving it along its own basis moves e by -delta
+    H_L1 = np.diag([-1.0, -1.0, 1.0])
+    J = np.hstack([H_1 + H_2, H_L2, H_L1] if len(joint_cov) == 12 else [H_1, H_2, H_L2, H_L1])
     S = J @ joint_cov @ J.T
     return float(e @ np.linalg.solve(S, e))
 

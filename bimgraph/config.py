@@ -309,7 +309,10 @@ class OfflineConfig(Section):
     max_iterations: int = Field(50, ge=1, description="Levenberg-Marquardt iterations per round")
     relative_error_tol: float = Field(1e-6, gt=0, description="Levenberg-Marquardt stops when the error improves less than this fraction")
     merge_gate: float = Field(100.0, gt=0, description="two landmarks matched to one face merge unless their squared Mahalanobis distance as one plane exceeds this; far above the SLAM gate, since landmark covariances ignore the sensor's errors shared by neighbouring keyframes (measured: same wall up to 44, a board leaning on it 140 and more)")
-    snoop_deviations: bool = Field(False, description="robust alignment: each round, unmatch the landmarks whose face deviates beyond the deviations tolerance (k sigma) from the alignment the other walls decide, so that only consistent walls pull the extrinsic")
+    gnc: bool = Field(True, description="robust alignment: graduated non-convexity (Geman-McClure) decides which plane-to-BIM factors the alignment keeps (walls consistent with each other) and which walls it only measures (built off plan), whatever the walls seen first")
+    gnc_probability: float = Field(0.99, gt=0, lt=1, description="GNC keeps a plane-to-BIM factor whose squared whitened residual ends below this chi-square quantile (3 dof; 0.99: about 3.4 sigma), and sets the kernel's width")
+    gnc_step: float = Field(1.4, gt=1, description="GNC lowers the surrogate's convexity by this factor per step (the paper's 1.4)")
+    gnc_iterations: int = Field(5, ge=1, description="Levenberg-Marquardt iterations per GNC step (each starts where the last ended)")
 
 
 class BackendConfig(Section):

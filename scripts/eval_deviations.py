@@ -2,8 +2,8 @@
 as-built deviations, missing walls and clutter, report the deviations, and score them against
 the ground truth; and compare extrinsic error and ATE with the same world without deviations.
 
-    python scripts/eval_deviations.py --sequences SEQ... --clean NODEVSEQ... [--oracle] [--[no-]snoop]
-    python scripts/eval_deviations.py --synthetic [--seeds 0 1 2] [--[no-]snoop] [-c CONFIG]
+    python scripts/eval_deviations.py --sequences SEQ... --clean NODEVSEQ... [--oracle] [--[no-]gnc]
+    python scripts/eval_deviations.py --synthetic [--seeds 0 1 2] [--[no-]gnc] [-c CONFIG]
 
 `--sequences` are simulator sequences (`bimgraph simulate`, with `groundtruth/as_built.json`);
 `--clean` the same scenarios and seeds simulated without deviations (for the extrinsic and ATE
@@ -11,10 +11,10 @@ ratios). `--synthetic` uses the backend's synthetic rooms (`bimgraph.backend.syn
 a share of faces moved 5-10 cm and a share not built (their observations removed); there
 `clean_*` is the world as planned and `nodev_*` the same missing walls without deviations,
 and the ratios are against the latter. `--oracle` gives the backend the true associations, to
-measure the deviation step apart from the association. `--snoop` / `--no-snoop` override
-`backend.offline.snoop_deviations` (the robust alignment: at every offline round, the
-plane-to-BIM factors of faces found deviating against the rest leave the graph) for the
-deviating runs; the runs without deviations use the configuration as given.
+measure the deviation step apart from the association. `--gnc` / `--no-gnc` override
+`backend.offline.gnc` (the robust alignment: graduated non-convexity judges which plane-to-BIM
+factors the alignment keeps) in every run. `not_kept` counts the faces whose factor GNC did not
+keep whole, `not_kept_true` those of them truly off plan beyond the tolerance.
 """
 
 from __future__ import annotations
@@ -97,9 +97,6 @@ def evaluate(plane_map: PlaneMap, keyframes, initial, truth, T_B_C_true, T_B_S_t
              kinds: dict | None = None) -> dict:
     """Run the offline backend with the deviation step and score it. `kinds` maps (keyframe,
     observation) to the true kind of surface observed (wall, clutter, ...), if known."""
-    if args.snoop is not None:
-        offline = backend_cfg.offline.model_copy(update={"snoop_deviations": args.snoop})
-        backend_cfg = backend_cfg.model_copy(update={"offline": offline})
     est = OfflineEstimator(plane_map, backend_cfg, initial, oracle=oracle, deviations=dev_cfg)
     start = time.perf_counter()
     res = est.run(keyframes)
@@ -114,10 +111,11 @@ def evaluate(plane_map: PlaneMap, keyframes, initial, truth, T_B_C_true, T_B_S_t
             Counter(kinds[o] for o in landmarks[u.landmark].observations).most_common(1)[0][0] != "wall"
             for u in data.unplanned)
     rot, trans = extrinsic_error(res.T_B_S, T_B_S_true)
+    not_kept = [pair for pair, verdict in est.verdicts.items() if verdict != "kept"]
     sigma = np.sqrt(np.diag(res.cov_T_B_S))
     out.update(ext_deg=rot, ext_cm=trans, ext_sigma_deg=float(np.degrees(sigma[:3].max())), ext_sigma_cm=float(sigma[3:5].max() * 100),
-               ate_m=ate(res.T_B_C, T_B_C_true), snooped=len(est.snooped),
-               snooped_true=sum(abs(truth[face][0]) > dev_cfg.tolerance_m for _, face in est.snooped),
+               ate_m=ate(res.T_B_C, T_B_C_true), not_kept=len(not_kept),
+               not_kept_true=sum(abs(truth[face][0]) > dev_cfg.tolerance_m for _, face in not_kept),
                backend_s=t_backend, marginals_s=res.timings["deviation_covariances_s"], report_s=t_report)
     return out
 
@@ -201,12 +199,14 @@ def main():
     parser.add_argument("--deviating", type=float, default=0.2)
     parser.add_argument("--missing", type=float, default=0.3)
     parser.add_argument("--drift-scale", type=float, default=1.0, help="scales the synthetic front-end's drift per keyframe")
-    parser.add_argument("--snoop", action=argparse.BooleanOptionalAction, default=None,
-                        help="override backend.offline.snoop_deviations in the deviating runs")
+    parser.add_argument("--gnc", action=argparse.BooleanOptionalAction, default=None,
+                        help="override backend.offline.gnc")
     parser.add_argument("--oracle", action="store_true", help="give the backend the true associations (simulator only)")
     parser.add_argument("--config", "-c", type=Path, default=None)
     args = parser.parse_args()
     cfg = load_config(args.config)
+    if args.gnc is not None:
+        cfg.backend.offline.gnc = args.gnc
     if args.synthetic:
         print_table(args.seeds, [run_synthetic(seed, args, cfg) for seed in args.seeds])
     if args.sequences:

@@ -21,7 +21,6 @@ from bimgraph.deviations.estimate import (
     plane_to_bim_residual,
 )
 from bimgraph.deviations.graph import joint_covariance, observed_plane
-from bimgraph.deviations.robust import snoop
 from bimgraph.deviations.visibility import expected_view_counts
 from bimgraph.geometry import plane_to_frame
 from deviation_scenes import GUIDS, T_S_A, T_S_B, WALLS, as_built_plane, camera_looking, face, observed, rectangle, room
@@ -276,13 +275,3 @@ def test_one_landmark_measures_every_face_of_its_wall_plane():
     assert by_face["south-1"].deviation.offset_m == pytest.approx(0.05, abs=1e-3)
     assert report.unplanned == []
 
-
-def test_snooping_flags_only_the_deviating_wall():
-    graph, result, E, factors = room_graph("east", 0.08)
-    joint = partial(joint_covariance, gtsam.Marginals(graph, result))
-    planes = [observed_plane(joint, result, E, X(0), L(j), 10, face(name).id, factors[name])
-              for j, name in enumerate(WALLS)]
-    outliers = snoop(planes, room(), result.atPose3(E).matrix(), CFG)
-    assert [o.face_id for o in outliers] == ["east-face"]
-    assert outliers[0].deviation.offset_m == pytest.approx(0.08, abs=1e-3)
-    assert outliers[0].excess > CFG.k_sigma

@@ -1,7 +1,7 @@
 """The deviation step on the real backend: the online iSAM2 graph of the backend's synthetic
 rooms, with one face of the plan moved, read through `observed_planes_isam2` and written by
 `write_deviation_outputs`; and the offline backend's robust alignment
-(`offline.snoop_deviations`), which takes the moved face out of the alignment."""
+(`offline.gnc`), which keeps the moved face out of the alignment."""
 
 import numpy as np
 import pytest
@@ -15,6 +15,7 @@ from bimgraph.deviations.bcf import BCF_FILE, read_bcf_topics
 from bimgraph.deviations.graph import observed_planes_isam2
 from bimgraph.deviations.outputs import write_deviation_outputs
 from bimgraph.deviations.report import CSV_FILE, JSON_FILE, load_deviations, read_csv_rows
+from bimgraph.evaluation.metrics import ate, extrinsic_error
 from bimgraph.sequence.format import Camera
 
 MOVED = {"r00E": 0.08}  # the wall was built 8 cm into the room
@@ -76,41 +77,40 @@ def test_outputs_are_written_and_consistent_with_the_truth(run, tmp_path):
 
 @pytest.fixture(scope="module")
 def offline_runs():
-    """The offline backend on the same rooms, without and with snooping deviating faces."""
-    scene = make_scene(160, rooms=(2, 1), seed=0, drift_rot_deg=0.01, drift_trans_m=0.001)
+    """The offline backend on rooms where the moved wall is seen early enough for the robust
+    kernel alone to follow it (scene seed 1), without and with graduated non-convexity."""
+    scene = make_scene(160, rooms=(2, 1), seed=1, drift_rot_deg=0.01, drift_trans_m=0.001)
     plan = moved_plan(scene.plane_map)
     runs = {}
-    for snoop in (False, True):
+    for gnc in (False, True):
         cfg = BackendConfig()
-        cfg.offline.snoop_deviations = snoop
+        cfg.offline.gnc = gnc
         est = OfflineEstimator(plan, cfg, scene.initial)
-        runs[snoop] = est, est.run(scene.keyframes)
-    return plan, runs
+        runs[gnc] = est, est.run(scene.keyframes)
+    return scene, plan, runs
 
 
-def test_offline_snooping_takes_only_the_moved_wall_out_of_the_alignment(offline_runs):
-    plan, runs = offline_runs
-    est, res = runs[False]
-    assert est.snooped == set()
-    assert "r00E" in {lm.face for lm in res.landmarks}
-
+def test_offline_gnc_keeps_the_moved_wall_out_of_the_alignment(offline_runs):
+    scene, plan, runs = offline_runs
     est, res = runs[True]
-    assert {face for _, face in est.snooped} == set(MOVED)
-    assert "r00E" not in {lm.face for lm in res.landmarks}  # its factor left the graph and stays out
-    assert all("r00E" in est.landmarks[lm_id].rejected for lm_id, _ in est.snooped)
-    # every other face observed keeps its match
-    assert {lm.face for lm in res.landmarks if lm.face} == {lm.face for lm in runs[False][1].landmarks if lm.face} - set(MOVED)
-    assert res.rounds >= 2
+    assert {face: verdict for (_, face), verdict in est.verdicts.items() if verdict != "kept"} == {"r00E": "direction"}
+    assert {lm.face: lm.alignment for lm in res.landmarks if lm.face == "r00E"} == {"r00E": "direction"}
+    # the moved wall keeps its face (to be measured) and every face observed keeps its match
+    assert {lm.face for lm in res.landmarks if lm.face} == {lm.face for lm in runs[False][1].landmarks if lm.face}
+    # the kernel alone follows the moved wall; GNC's alignment is the consistent walls'
+    assert ate(runs[False][1].T_B_C, np.asarray(scene.T_B_C)) > 0.04
+    assert ate(res.T_B_C, np.asarray(scene.T_B_C)) < 0.015
+    assert extrinsic_error(res.T_B_S, scene.T_B_S)[1] < 1.5
 
 
-def test_offline_snooped_wall_is_measured_against_the_others(offline_runs, tmp_path):
-    plan, runs = offline_runs
+def test_offline_gnc_measures_the_moved_wall_against_the_others(offline_runs, tmp_path):
+    _, plan, runs = offline_runs
     _, res = runs[True]
     camera = Camera(width=640, height=480, fx=525.0, fy=525.0, cx=319.5, cy=239.5)
     data = write_deviation_outputs(tmp_path, plan, res.observed_planes, res.T_B_S, res.T_B_C, camera, DeviationConfig())
     moved = next(f for f in data.faces if f.face_id == "r00E")
     assert moved.status == "deviating"
-    assert abs(moved.offset_m - MOVED["r00E"]) < 3 * moved.offset_sigma_m
+    assert abs(moved.offset_m - MOVED["r00E"]) < min(3 * moved.offset_sigma_m, 0.01)
     for f in data.faces:
         if f.offset_m is not None and f.face_id not in MOVED:
-            assert abs(f.offset_m) < 4 * f.offset_sigma_m + 0.005, f
+            assert abs(f.offset_m) < min(4 * f.offset_sigma_m + 0.005, 0.015), f

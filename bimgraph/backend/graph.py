@@ -90,13 +90,19 @@ class FactorBuilder:
         noise = _robust(n.plane_kernel, n.plane_kernel_width, self.plane_noise(cov))
         return local_plane_factor(plane_C, noise, X(k), X(anchor), L(j))
 
-    def bim(self, anchor: int, j: int, plane_B: np.ndarray, centre_B: np.ndarray | None) -> gtsam.NonlinearFactor:
+    def bim(self, anchor: int, j: int, plane_B: np.ndarray, centre_B: np.ndarray | None,
+            weight: float | None = None, offset_m: float | None = None) -> gtsam.NonlinearFactor:
         """Landmark j (anchored at `anchor`) is the face `plane_B`, within the as-built
-        tolerance about the face's centre `centre_B`."""
+        tolerance about the face's centre `centre_B` (offset: `offset_m`, default the
+        configured one): under the configured robust kernel, or, given a `weight` (graduated
+        non-convexity decides it), Gaussian with that weight."""
         n = self.cfg.noise
         basis = gtsam.Unit3(np.asarray(plane_B[:3], dtype=float)).basis()
-        cov = face_tolerance_cov(basis, centre_B, np.radians(n.bim_normal_deg), n.bim_offset_m)
-        noise = _robust(n.bim_kernel, n.bim_kernel_width, gtsam.noiseModel.Gaussian.Covariance(cov))
+        cov = face_tolerance_cov(basis, centre_B, np.radians(n.bim_normal_deg), offset_m or n.bim_offset_m)
+        if weight is None:
+            noise = _robust(n.bim_kernel, n.bim_kernel_width, gtsam.noiseModel.Gaussian.Covariance(cov))
+        else:
+            noise = gtsam.noiseModel.Gaussian.Covariance(cov / weight)
         return plane_to_bim_factor(plane_B, noise, E, X(anchor), L(j))
 
     def extrinsic_prior(self, T_B_S: np.ndarray, cov_T_B_S_: np.ndarray) -> gtsam.NonlinearFactor:

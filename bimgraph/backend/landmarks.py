@@ -55,6 +55,9 @@ class Landmark:
     observation_faces: list | None = None  # per observation, the face behind it, once resolved
     bim_attempt: int = 0  # observation count when last scored against the BIM faces
     merged_into: int | None = None  # set when an offline round found it to be another landmark's plane
+    # how the alignment uses its plane-to-BIM factor: "kept"; offline GNC may find the wall off
+    # plan and keep only its direction ("direction") or none of it ("out")
+    alignment: str = "kept"
 
     def absorb(self, other: "Landmark", max_points: int) -> None:
         """Take over the observations and extent of a landmark found to be the same plane."""

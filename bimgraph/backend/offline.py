@@ -7,10 +7,10 @@ Levenberg-Marquardt smooths it, and with the smoothed estimates and marginals th
 stopped fitting are revised, unmatched landmarks are associated, landmarks spanning coplanar
 sections of a wall are split per section, and landmarks matched to the same BIM face are
 merged into one (the loop closures a drifting causal pass misses); until a
-round changes nothing. With `offline.snoop_deviations`, a round also takes off its face every
-landmark whose face deviates significantly from the alignment the rest of the graph decides
-(`bimgraph.deviations.robust.snoop`), so that the consistent walls alone decide the extrinsic
-and the deviating one is measured against it.
+round changes nothing. Once the association settles, graduated non-convexity judges which
+plane-to-BIM factors the alignment keeps (`_gnc`): the walls consistent with each other decide
+the extrinsic and the poses, and a wall built off plan is measured against them; the rounds
+then go on until neither changes.
 """
 
 from __future__ import annotations
@@ -18,10 +18,13 @@ from __future__ import annotations
 import functools
 import time
 from collections import Counter
+from collections.abc import Callable
 
 import gtsam
 import numpy as np
+from scipy.stats import chi2
 
+from bimgraph.backend import gnc
 from bimgraph.backend.alignment import Alignment
 from bimgraph.backend.associate_bim import PlaneInB, plane_in_B
 from bimgraph.backend.graph import E, L, X, cov_T_B_S, pose3
@@ -35,6 +38,12 @@ from bimgraph.geometry import inverse, plane_from_frame
 from bimgraph.sequence.format import Keyframe
 from factors.plane import predict_local_plane
 
+# GNC's verdicts on a plane-to-BIM factor: kept whole; the wall's direction kept, its offset
+# left to the observations; or out of the alignment.
+KEPT, DIRECTION, OUT = "kept", "direction", "out"
+# An offset tolerance that leaves the offset to the observations (metres: no wall is this far off).
+_FREE_OFFSET_M = 100.0
+
 
 class OfflineEstimator:
     def __init__(self, plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,
@@ -43,8 +52,9 @@ class OfflineEstimator:
         self.cfg = cfg
         self.plane_map = plane_map
         self.deviations = deviations or DeviationConfig()
-        self.snooped: set[tuple[int, str]] = set()  # (landmark, face) pairs snooping took apart
         self.apart: set[tuple[int, str]] = set()  # (landmark, face) pairs merging found not one plane
+        # GNC's verdict on each (landmark, face) pair it judged (KEPT, DIRECTION or OUT)
+        self.verdicts: dict[tuple[int, str], str] = {}
         self.listener = listener or Listener()
         # the causal pass reports nothing: the listener hears the smoothed results
         self.online = Backend(plane_map, cfg, initial, None, oracle, covariance=False)
@@ -73,9 +83,14 @@ class OfflineEstimator:
             t_opt += t1 - t0
             self._refresh(values)
             changed = self.oracle is None and rounds <= self.cfg.offline.max_rounds and (
-                self._revise(values) | self._snoop(values, marginals) | self._associate(values, marginals)
+                self._revise(values) | self._associate(values, marginals)
                 | self._merge(values, marginals) | self._split(values))
             t_assoc += time.perf_counter() - t1
+            if not changed and self.cfg.offline.gnc and set(self._matches()) != set(self.verdicts):
+                t2 = time.perf_counter()
+                values = self._gnc(keyframes, observations, values)
+                t_opt += time.perf_counter() - t2
+                changed = True
             if not changed:
                 break
         timings.update(optimisation_s=t_opt, bim_association_s=t_assoc, total_s=time.perf_counter() - start)
@@ -84,9 +99,15 @@ class OfflineEstimator:
     def _active(self):
         return [lm for lm in self.landmarks.items if lm.merged_into is None]
 
-    def _graph(self, keyframes: list[Keyframe], observations) -> gtsam.NonlinearFactorGraph:
-        """The whole graph, from the front-end poses and the current associations."""
+    def _matches(self) -> list[tuple[int, str]]:
+        return [(lm.id, lm.face) for lm in self._active() if lm.face is not None]
+
+    def _graph(self, keyframes: list[Keyframe], observations,
+               bim_factor: Callable[[Landmark], gtsam.NonlinearFactor | None] | None = None) -> gtsam.NonlinearFactorGraph:
+        """The whole graph, from the front-end poses and the current associations; each
+        matched landmark's plane-to-BIM factor from `bim_factor` (default: as GNC judged it)."""
         build = self.online.build
+        bim_factor = bim_factor or self._judged_factor
         graph = gtsam.NonlinearFactorGraph()
         graph.add(build.extrinsic_prior(self.online.prior.T_B_S, self.online.prior.cov))
         graph.add(build.first_pose(keyframes[0].index, keyframes[0].pose))
@@ -100,9 +121,57 @@ class OfflineEstimator:
                 obs = observations[k][i]
                 graph.add(build.anchor_observation(lm.id, obs.plane_C, obs.cov) if k == lm.anchor else
                           build.observation(k, lm.anchor, lm.id, obs.plane_C, obs.cov))
-            if lm.face is not None:
-                graph.add(self._bim_factor(lm))
+            factor = bim_factor(lm) if lm.face is not None else None
+            if factor is not None:
+                graph.add(factor)
         return graph
+
+    def _gnc(self, keyframes: list[Keyframe], observations, values: gtsam.Values) -> gtsam.Values:
+        """Judge which plane-to-BIM factors the alignment keeps whole (`KEPT`); of the others,
+        the wall's direction is kept where it fits and only its offset is left to the
+        observations (`DIRECTION`: built parallel to plan, off its line), else the factor
+        goes (`OUT`). Either way the landmark keeps its face, to be measured.
+
+        The objective is truncated least squares: a factor not kept whole costs `c^2` whatever
+        its residual. It has two starts: the robust kernel's estimate, which the walls seen
+        first decide, and graduated non-convexity's (`bimgraph.backend.gnc`), which the
+        majority of walls decides; the one of lower cost wins. So a wall moved in the first
+        room cannot hold the alignment against the rest, nor can several walls moved alike
+        outvote consistent walls that the kernel already follows."""
+        cfg = self.cfg.offline
+        matches = self._matches()
+        c2, c2_direction = chi2.ppf(cfg.gnc_probability, 3), chi2.ppf(cfg.gnc_probability, 2)
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(cfg.gnc_iterations)
+        params.setRelativeErrorTol(cfg.relative_error_tol)
+
+        def solve(bim_factor, values):
+            return gtsam.LevenbergMarquardtOptimizer(self._graph(keyframes, observations, bim_factor), values, params).optimize()
+
+        def truncated(values):
+            """The verdicts at `values`, the estimate under them, and its TLS cost."""
+            whole = self._squared_residuals(matches, values) <= c2
+            direction = self._squared_residuals(matches, values, free_offset=True) <= c2_direction
+            verdicts = dict(zip(matches, np.where(whole, KEPT, np.where(direction, DIRECTION, OUT))))
+            graph = self._graph(keyframes, observations, lambda lm: self._bim_factor(lm, 1.0, verdicts[lm.id, lm.face]))
+            values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+            return graph.error(values) + 0.5 * c2 * float(np.sum(~whole)), verdicts, values
+
+        kernel = truncated(values)
+        r2 = self._squared_residuals(matches, values)
+        mu = gnc.initial_mu(r2, c2)
+        for mu in gnc.schedule(mu, cfg.gnc_step) if mu is not None else []:
+            weights = dict(zip(matches, gnc.gm_weights(r2, mu, c2)))
+            values = solve(lambda lm: self._bim_factor(lm, weights[lm.id, lm.face]), values)
+            r2 = self._squared_residuals(matches, values)
+        _, self.verdicts, values = min(kernel, truncated(values), key=lambda candidate: candidate[0])
+        return values
+
+    def _squared_residuals(self, matches: list[tuple[int, str]], values: gtsam.Values, free_offset: bool = False) -> np.ndarray:
+        """Squared whitened residuals of the plane-to-BIM factors (Gaussian, weight 1), or of
+        their direction alone."""
+        verdict = DIRECTION if free_offset else KEPT
+        return np.array([2.0 * self._bim_factor(self.landmarks[j], 1.0, verdict).error(values) for j, _ in matches])
 
     def _split(self, values: gtsam.Values) -> bool:
         """A landmark whose observations lie on several coplanar sections of a wall becomes one
@@ -179,7 +248,7 @@ class OfflineEstimator:
         from bimgraph.deviations.graph import joint_covariance, observed_planes
 
         return observed_planes(self._active(), values, functools.partial(joint_covariance, marginals),
-                               {lm.id: self._bim_factor(lm) for lm in self._active() if lm.face is not None})
+                               {lm.id: self._judged_factor(lm) for lm in self._active() if lm.face is not None})
 
     def _results(self, keyframes, values, marginals, timings, rounds) -> Results:
         start = time.perf_counter()
@@ -190,6 +259,8 @@ class OfflineEstimator:
         cov = cov_T_B_S(T_S_B, marginals.marginalCovariance(E)) + self.online.locked_cov
         T_S_C = [values.atPose3(X(kf.index)).matrix() for kf in keyframes]
         self.online.resolve_faces(T_B_S)
+        for lm in self._active():
+            lm.alignment = str(self.verdicts.get((lm.id, lm.face), KEPT))
         face_of, landmark_of = {}, {}
         for lm in self._active():
             for obs, face in zip(lm.observations, lm.observation_faces):
@@ -211,9 +282,18 @@ class OfflineEstimator:
             self.landmarks.set_estimate(lm.id, values.atOrientedPlane3(L(lm.id)).planeCoefficients(),
                                         values.atPose3(X(lm.anchor)).matrix())
 
-    def _bim_factor(self, lm) -> gtsam.NonlinearFactor:
+    def _bim_factor(self, lm, weight: float | None = None, verdict: str = "kept") -> gtsam.NonlinearFactor | None:
+        """The landmark's plane-to-BIM factor: Gaussian with `weight`, or under the robust
+        kernel (None); with the offset left free for `DIRECTION`, none for `OUT`."""
+        if verdict == OUT:
+            return None
         row = self.faces.row[lm.face]
-        return self.online.build.bim(lm.anchor, lm.id, self.faces.planes[row], self.faces.centres[row])
+        offset_m = _FREE_OFFSET_M if verdict == DIRECTION else None
+        return self.online.build.bim(lm.anchor, lm.id, self.faces.planes[row], self.faces.centres[row], weight, offset_m)
+
+    def _judged_factor(self, lm) -> gtsam.NonlinearFactor | None:
+        """The factor as GNC judged it, under the robust kernel (also before it judged)."""
+        return self._bim_factor(lm, None, self.verdicts.get((lm.id, lm.face), KEPT))
 
     def _revise(self, values: gtsam.Values) -> bool:
         changed = False
@@ -226,26 +306,6 @@ class OfflineEstimator:
             if reason is not None:
                 unmatch(lm, reason, self.listener)
                 changed = True
-        return changed
-
-    def _snoop(self, values: gtsam.Values, marginals: gtsam.Marginals) -> bool:
-        """Unmatch the landmarks whose face deviates beyond the tolerance from the alignment the
-        rest of the graph decides; their factor leaves the next round's graph, and the deviation
-        step measures the face against the consistent walls' alignment."""
-        if not self.cfg.offline.snoop_deviations:
-            return False
-        from bimgraph.deviations.robust import snoop
-
-        outliers = snoop(self._observed_planes(values, marginals), self.plane_map,
-                         values.atPose3(E).matrix(), self.deviations)
-        changed = False
-        for outlier in outliers:
-            lm = self.landmarks[outlier.landmark]
-            if lm.face != outlier.face_id:
-                continue  # already revised in this round
-            self.snooped.add((lm.id, lm.face))
-            unmatch(lm, f"deviates {outlier.deviation.offset_m:+.3f} m from plan", self.listener)
-            changed = True
         return changed
 
     def _associate(self, values: gtsam.Values, marginals: gtsam.Marginals) -> bool:
@@ -261,8 +321,8 @@ class OfflineEstimator:
             cov = np.block([[joint.at(a, b) for b in keys] for a in keys])
             plane_B, cov_B = plane_in_B(T_S_B, pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A), cov)
             candidates.append(PlaneInB(lm.id, plane_B, cov_B, lm.extent_in(T_B_S), lm.area))
-        # a face snooping or merging took a landmark off would only pull it back: it stays apart
-        matches = [m for m in self.bim.match(candidates) if (m.landmark, m.face) not in self.snooped | self.apart]
+        # a face merging took a landmark off would only pull it back: it stays apart
+        matches = [m for m in self.bim.match(candidates) if (m.landmark, m.face) not in self.apart]
         for m in matches:
             lm = self.landmarks[m.landmark]
             lm.face, lm.score = m.face, m.score

@@ -58,6 +58,7 @@ def associations_record(landmarks: list[Landmark]) -> dict:
             by_face.setdefault(face, []).append(obs)
         for face, observations in by_face.items():
             records.append({"landmark": lm.id, "face": face, "landmark_face": lm.face, "score": _finite(lm.score),
+                            "alignment": lm.alignment,
                             "keyframes": sorted({k for k, _ in observations}),
                             "observations": [list(o) for o in observations]})
     return {"associations": records}

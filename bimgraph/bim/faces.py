@@ -82,8 +82,10 @@ def orient_outward(V: np.ndarray, T: np.ndarray) -> np.ndarray:
     owner = np.repeat(np.arange(len(T)), 3)
     key = half[:, 0].astype(np.int64) * len(V) + half[:, 1]  # one integer per undirected edge
     order = np.argsort(key, kind="stable")
-    _, first, count = np.unique(key[order], return_index=True, return_counts=True)
-    a, b = order[first[count == 2]], order[first[count == 2] + 1]
+    key = key[order]
+    first = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1], [True]]))  # runs of one edge
+    pairs = first[:-1][np.diff(first) == 2]  # edges of exactly two triangles
+    a, b = order[pairs], order[pairs + 1]
     parts, label = _components(len(T), owner[a], owner[b])
     # Two triangles that run their common edge the same way disagree: one must flip.
     disagree = directed[a, 0] == directed[b, 0]
@@ -122,20 +124,22 @@ def _components(n: int, i: np.ndarray, j: np.ndarray, rounds: int = 8) -> tuple[
         np.minimum.at(spread, i, low)
         np.minimum.at(spread, j, low)
         spread = spread[spread]
-        if np.array_equal(spread, label):
-            roots, label = np.unique(label, return_inverse=True)
-            return len(roots), label.reshape(-1)
+        if (spread == label).all():  # each node holds its component's smallest node: number those
+            roots = label == np.arange(n)
+            return int(roots.sum()), (np.cumsum(roots) - 1)[label]
         label = spread
     adjacency = scipy.sparse.coo_matrix((np.ones(len(i)), (i, j)), shape=(n, n))
     return scipy.sparse.csgraph.connected_components(adjacency, directed=False)
 
 
-def _split_sorted(values: np.ndarray, tol: float) -> np.ndarray:
-    """Cluster labels of 1-D values: a new cluster starts wherever the sorted gap exceeds tol."""
+def _split_sorted(values: np.ndarray, tol: float) -> tuple[np.ndarray, int]:
+    """Cluster labels (0 to count - 1) of 1-D values and their count: a new cluster starts
+    wherever the sorted gap exceeds tol."""
     order = np.argsort(values)
     labels = np.empty(len(values), dtype=int)
-    labels[order] = np.cumsum(np.concatenate([[False], np.diff(values[order]) > tol]))[:len(values)]
-    return labels
+    labels[order] = np.cumsum(np.concatenate([[False], np.diff(values[order]) > tol]))
+    count = int(labels[order[-1]]) + 1 if len(values) else 0
+    return labels, count
 
 
 def vertical_faces(V, T, vertical_tol_rad: float, angle_tol_rad: float, distance_tol: float,
@@ -158,10 +162,12 @@ def vertical_faces(V, T, vertical_tol_rad: float, angle_tol_rad: float, distance
     # Directions within the tolerance of pi are the same line as those near 0.
     theta = np.where(theta > np.pi - angle_tol_rad, theta - np.pi, theta)
     faces = []
-    for direction in np.unique(labels := _split_sorted(theta, angle_tol_rad)):
+    labels, count = _split_sorted(theta, angle_tol_rad)
+    for direction in range(count):
         in_dir = labels == direction
-        n0 = np.array([np.cos(theta[in_dir].mean()), np.sin(theta[in_dir].mean()), 0.0])
-        if along is not None and not is_side_face(Face(n0, 0.0, None), along, along_tol_rad):
+        mean = theta[in_dir].mean()
+        n0 = np.array([np.cos(mean), np.sin(mean), 0.0])
+        if along is not None and not is_side_face(n0 / np.linalg.norm(n0), along, along_tol_rad):
             continue
         offsets = -V[T[in_dir]].mean(axis=1) @ n0
         faces += _plane_faces(V, T[in_dir], normals[in_dir] @ n0, areas[in_dir], n0, offsets, distance_tol, grid)
@@ -185,9 +191,11 @@ def _plane_faces(V, T, sides, areas, n0, offsets, distance_tol, grid) -> list[Fa
     region covered by triangles of both orientations is an internal interface (the layers of
     a multi-layer wall, two items touching) and belongs to no face."""
     faces = []
-    for plane in np.unique(labels := _split_sorted(offsets, distance_tol)):
+    labels, count = _split_sorted(offsets, distance_tol)
+    for plane in range(count):
         members = labels == plane
-        d0 = float(np.average(offsets[members], weights=areas[members]))
+        weights = areas[members]
+        d0 = float((offsets[members] * weights).sum() / weights.sum())  # np.average's sums, without its checks
         reference = Face(n0, d0, None)
         regions = {s: _union_of_triangles(reference.to_2d(V[T[members & (np.sign(sides) == s)]]), grid)
                    for s in (1.0, -1.0)}
@@ -209,10 +217,11 @@ def _union_of_triangles(triangles: np.ndarray, grid: float):
     if len(triangles) == 0:
         return Polygon()
     pieces = shapely.polygons(triangles)
-    pieces = pieces[shapely.area(pieces) > 0]
+    areas = shapely.area(pieces)
+    pieces, areas = pieces[areas > 0], areas[areas > 0]
     try:
         region = shapely.coverage_union_all(pieces)
-        tiled = region.is_valid and abs(region.area - shapely.area(pieces).sum()) <= grid * region.length
+        tiled = region.is_valid and abs(region.area - areas.sum()) <= grid * region.length
     except shapely.errors.GEOSException:  # raised on some overlaps, others give a wrong area
         tiled = False
     if not tiled:
@@ -242,10 +251,11 @@ def long_axis(V: np.ndarray) -> np.ndarray:
     return np.append(longest / np.linalg.norm(longest), 0.0)
 
 
-def is_side_face(face: Face, axis_directions, angle_tol_rad: float) -> bool:
-    """A wall's side faces run along its axis (along one of its segments); its ends, the
-    steps of its profile and the faces where it is mitred to another wall do not."""
-    return any(abs(face.normal @ a) < np.sin(angle_tol_rad) for a in axis_directions)
+def is_side_face(normal: np.ndarray, axis_directions, angle_tol_rad: float) -> bool:
+    """Whether a wall's face of unit `normal` is a side face: side faces run along the wall's
+    axis (along one of its segments); its ends, the steps of its profile and the faces where
+    it is mitred to another wall do not."""
+    return any(abs(normal @ a) < np.sin(angle_tol_rad) for a in axis_directions)
 
 
 def plane_section(V, T, face: Face, depth: float) -> object:
@@ -267,13 +277,17 @@ def plane_section(V, T, face: Face, depth: float) -> object:
     return shapely.union_all(list(shapely.polygonize(shapely.linestrings(points)).geoms))
 
 
+def boxes_apart(a, b, margin: float = 0.0) -> bool:
+    """Whether the bounding boxes of two regions are at least `margin` apart (touching, with
+    none): then the regions share no area, which a region operation takes far longer to find."""
+    (a0, a1, a2, a3), (b0, b1, b2, b3) = a.bounds, b.bounds
+    return a2 + margin <= b0 or b2 + margin <= a0 or a3 + margin <= b1 or b3 + margin <= a1
+
+
 def overlap_area(a, b) -> float:
     """The area of the intersection of two regions; 0 at once when their bounding boxes are
-    apart, as they are for a good part of the pairs a face's rooms and boundaries make."""
-    (a0, a1, a2, a3), (b0, b1, b2, b3) = a.bounds, b.bounds
-    if a2 < b0 or b2 < a0 or a3 < b1 or b3 < a1:
-        return 0.0
-    return a.intersection(b).area
+    apart or touch, as they do for a good part of the pairs a face's rooms and boundaries make."""
+    return 0.0 if boxes_apart(a, b) else a.intersection(b).area
 
 
 def polygons(region) -> list[Polygon]:

@@ -82,7 +82,8 @@ class ModelReader:
         buildings = model.by_type("IfcBuilding")
         self.T_W_B = self.placement(buildings[0]) if buildings and buildings[0].ObjectPlacement else np.eye(4)
         self.T_B_W = inverse(self.T_W_B)
-        self._storeys = {}
+        self._storeys = {}  # element id -> (storey name, elevation)
+        self._storey_rows = {}  # storey id -> (name, elevation)
         self.settings = {}
         for subtract in (False, True):
             self.settings[subtract] = ifcopenshell.geom.settings()
@@ -140,8 +141,10 @@ class ModelReader:
             if container is None:
                 self._storeys[element.id()] = ("", 0.0)
             else:
-                elevation = float((self.T_B_W @ self.placement(container))[2, 3])
-                self._storeys[element.id()] = (container.Name or "", elevation)
+                if container.id() not in self._storey_rows:  # each storey once, for all its elements
+                    elevation = float((self.T_B_W @ self.placement(container))[2, 3])
+                    self._storey_rows[container.id()] = (container.Name or "", elevation)
+                self._storeys[element.id()] = self._storey_rows[container.id()]
         return self._storeys[element.id()]
 
     def axis_directions(self, wall, T_B_E: np.ndarray) -> list[np.ndarray]:
@@ -183,11 +186,12 @@ class ModelReader:
 
     def boundaries(self, walls) -> list[Boundary]:
         """Surface space boundaries on the given walls, as point loops in B."""
-        wall_ids = {wall.id() for wall in walls}
+        wall_guids = {wall.id(): wall.GlobalId for wall in walls}
+        spaces = {}  # id -> (guid, T_B_S), read once for the room's many boundaries
         out = []
         for rel in self.model.by_type("IfcRelSpaceBoundary"):
             wall = rel.RelatedBuildingElement
-            if wall is None or wall.id() not in wall_ids:  # most are on slabs, doors, windows
+            if wall is None or wall.id() not in wall_guids:  # most are on slabs, doors, windows
                 continue
             space, geometry = rel.RelatingSpace, rel.ConnectionGeometry
             if space is None or not space.is_a("IfcSpace"):
@@ -197,9 +201,11 @@ class ModelReader:
             points = _surface_points(geometry.SurfaceOnRelatingElement)
             if points is None or len(points) < 3:
                 continue
-            T_B_S = self.T_B_W @ self.placement(space)
+            if space.id() not in spaces:
+                spaces[space.id()] = (space.GlobalId, self.T_B_W @ self.placement(space))
+            guid, T_B_S = spaces[space.id()]
             points = points * self.scale
-            out.append(Boundary(space.GlobalId, wall.GlobalId, points @ T_B_S[:3, :3].T + T_B_S[:3, 3]))
+            out.append(Boundary(guid, wall_guids[wall.id()], points @ T_B_S[:3, :3].T + T_B_S[:3, 3]))
         return out
 
 
@@ -314,7 +320,7 @@ def _prism(solid) -> tuple[np.ndarray, np.ndarray] | None:
     direction = direction / np.linalg.norm(direction) * solid.Depth
     bottom = np.column_stack([profile, np.zeros(n)])
     V = np.vstack([bottom, bottom + direction])
-    caps = _triangulate(polygon, profile, np.arange(n))
+    caps = _corner_ids(shapely.constrained_delaunay_triangles(polygon), profile, np.arange(n))
     i = np.arange(n)
     j = (i + 1) % n
     T = np.vstack([caps, caps + n, np.column_stack([i, j, j + n]), np.column_stack([i, j + n, i + n])])
@@ -336,28 +342,28 @@ def _brep(brep) -> tuple[np.ndarray, np.ndarray] | None:
         loops.append(loop if bounds[0].Orientation else loop[::-1])
     # Shared corners get one index, so that the faces' common edges are cut at one point.
     V, index = np.unique(np.concatenate(loops), axis=0, return_inverse=True)
-    index = index.reshape(-1)
-    triangles, start = [], 0
-    for loop in loops:
-        ids = index[start:start + len(loop)]
-        start += len(loop)
-        if len(loop) == 3:
-            triangles.append(ids[None, :])
-            continue
-        axes = np.linalg.svd(loop - loop.mean(axis=0))[2][:2]  # the loop's own plane
-        points = loop @ axes.T
-        flat = shapely.Polygon(points)
-        if not flat.is_valid or flat.area <= 0:
+    ids = np.split(index.reshape(-1), np.cumsum([len(loop) for loop in loops])[:-1])
+    triangles = [i[None, :] for i in ids]  # the triangles' own; the others' below
+    # Each polygon is laid flat in its own plane and triangulated there, those with as many
+    # corners together: numpy's and shapely's calls cost more than their work on one.
+    for n in {len(loop) for loop in loops} - {3}:
+        which = [i for i, loop in enumerate(loops) if len(loop) == n]
+        stack = np.array([loops[i] for i in which])
+        axes = np.linalg.svd(stack - stack.mean(axis=1, keepdims=True))[2][:, :2]  # the loops' planes
+        flat = stack @ axes.transpose(0, 2, 1)
+        polygons = shapely.polygons(flat)
+        if not shapely.is_valid(polygons).all() or (shapely.area(polygons) <= 0).any():
             return None
-        triangles.append(_triangulate(flat, points, ids))
+        for i, points, cdt in zip(which, flat, shapely.constrained_delaunay_triangles(polygons)):
+            triangles[i] = _corner_ids(cdt, points, ids[i])
     return V, np.concatenate(triangles)
 
 
-def _triangulate(polygon, points: np.ndarray, ids: np.ndarray) -> np.ndarray:
-    """The constrained Delaunay triangles of `polygon` (its vertices `points`, N x 2) as the
-    `ids` of their corners."""
+def _corner_ids(triangles, points: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """The corners of `triangles` (a constrained Delaunay triangulation of a polygon of
+    vertices `points`, N x 2) as the `ids` of those vertices."""
     lookup = {p: i for p, i in zip(map(tuple, points.tolist()), ids.tolist())}
-    corners = shapely.get_coordinates(shapely.constrained_delaunay_triangles(polygon)).reshape(-1, 4, 2)[:, :3]
+    corners = shapely.get_coordinates(triangles).reshape(-1, 4, 2)[:, :3]
     return np.array([[lookup[tuple(c)] for c in triangle] for triangle in corners.tolist()], dtype=int)
 
 

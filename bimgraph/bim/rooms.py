@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from bimgraph.bim.faces import Face, overlap_area, plane_section, polygons
+from bimgraph.bim.faces import Face, boxes_apart, overlap_area, plane_section, polygons
 
 
 @dataclass
@@ -139,10 +139,14 @@ def split_face(face: Face, claims: list[Claim], grid: float) -> list[tuple[objec
     merged: dict[tuple, list] = {}
     for claim in claims:
         merged.setdefault((claim.space_guid, claim.method), []).append(claim.region)
-    claims = [Claim(guid, method, shapely.union_all(regions)) for (guid, method), regions in merged.items()]
     remaining = face.region
     parts: dict[str, list] = {}
-    for claim in claims:
+    for (guid, method), regions in merged.items():
+        # A claim lying apart from what remains of the face takes nothing (the room above a
+        # face claims along its top edge at most): its costly overlays are skipped.
+        if remaining.is_empty or all(boxes_apart(remaining, region) for region in regions):
+            continue
+        claim = Claim(guid, method, shapely.union_all(regions))
         piece = shapely.union_all(polygons(remaining.intersection(claim.region, grid_size=grid)))
         if piece.area <= grid:
             continue
@@ -164,14 +168,22 @@ def split_face(face: Face, claims: list[Claim], grid: float) -> list[tuple[objec
         edges = [u0 - 1, *inner, u1 + 1]
         pieces += [piece for a, b in zip(edges, edges[1:]) for piece in polygons(
             leftover.intersection(shapely.box(a, v0 - 1, b, v1 + 1), grid_size=grid))] if len(inner) else [leftover]
-    # The border a piece shares with a part, as the area of the piece within 2 grid of it.
-    grown = {guid: part[0].buffer(2 * grid) for guid, part in parts.items()}
+    # The border a piece shares with a part, as the area of the piece within 2 grid of it; a
+    # part's grown region is only made for a piece near it (the others share 0).
+    grown = {}
     merged_pieces = {guid: [] for guid in parts}
     unclaimed = []
     for leftover in pieces:
         if leftover.area < grid * grid:
             continue  # a sliver left by rounding
-        shared = {guid: overlap_area(leftover, region) for guid, region in grown.items()}
+        shared = {}
+        for guid, (region, _) in parts.items():
+            if boxes_apart(leftover, region, 3 * grid):
+                shared[guid] = 0.0
+                continue
+            if guid not in grown:
+                grown[guid] = region.buffer(2 * grid)
+            shared[guid] = overlap_area(leftover, grown[guid])
         best = max(shared, key=shared.get, default=None)
         if best is not None and shared[best] > 0:
             merged_pieces[best].append(leftover)

@@ -145,14 +145,11 @@ class OfflineEstimator:
         params.setMaxIterations(cfg.gnc_iterations)
         params.setRelativeErrorTol(cfg.relative_error_tol)
 
-        def solve(bim_factor, values):
-            return gtsam.LevenbergMarquardtOptimizer(self._graph(keyframes, observations, bim_factor), values, params).optimize()
-
         def truncated(values):
             """The verdicts at `values`, the estimate under them, and its TLS cost."""
             whole = self._squared_residuals(matches, values) <= c2
             direction = self._squared_residuals(matches, values, free_offset=True) <= c2_direction
-            verdicts = dict(zip(matches, np.where(whole, KEPT, np.where(direction, DIRECTION, OUT))))
+            verdicts = {m: KEPT if w else DIRECTION if d else OUT for m, w, d in zip(matches, whole, direction)}
             graph = self._graph(keyframes, observations, lambda lm: self._bim_factor(lm, 1.0, verdicts[lm.id, lm.face]))
             values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
             return graph.error(values) + 0.5 * c2 * float(np.sum(~whole)), verdicts, values
@@ -162,7 +159,8 @@ class OfflineEstimator:
         mu = gnc.initial_mu(r2, c2)
         for mu in gnc.schedule(mu, cfg.gnc_step) if mu is not None else []:
             weights = dict(zip(matches, gnc.gm_weights(r2, mu, c2)))
-            values = solve(lambda lm: self._bim_factor(lm, weights[lm.id, lm.face]), values)
+            graph = self._graph(keyframes, observations, lambda lm: self._bim_factor(lm, weights[lm.id, lm.face]))
+            values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
             r2 = self._squared_residuals(matches, values)
         _, self.verdicts, values = min(kernel, truncated(values), key=lambda candidate: candidate[0])
         return values
@@ -260,7 +258,7 @@ class OfflineEstimator:
         T_S_C = [values.atPose3(X(kf.index)).matrix() for kf in keyframes]
         self.online.resolve_faces(T_B_S)
         for lm in self._active():
-            lm.alignment = str(self.verdicts.get((lm.id, lm.face), KEPT))
+            lm.alignment = self.verdicts.get((lm.id, lm.face), KEPT)
         face_of, landmark_of = {}, {}
         for lm in self._active():
             for obs, face in zip(lm.observations, lm.observation_faces):

@@ -48,10 +48,13 @@ def test_run_writes_every_output(world, tmp_path, mode):
     associations = json.loads((tmp_path / "associations.json").read_text())["associations"]
     faces = {f.id for f in scene.plane_map.faces}
     assert associations and all(a["face"] in faces and a["keyframes"] for a in associations)
+    # the world is built as planned: every match is kept whole by the alignment
+    assert {a["alignment"] for a in associations} == {"kept"}
     landmarks = json.loads((tmp_path / "landmarks.json").read_text())["landmarks"]
     assert len(landmarks) >= len({a["landmark"] for a in associations})
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["finished"] and summary["mode"] == mode and summary["keyframes"] == N
+    assert summary["off_plan_landmarks"] == 0
 
 
 def test_crash_mid_run_leaves_valid_outputs(world, tmp_path):

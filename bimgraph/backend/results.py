@@ -82,6 +82,8 @@ def summary_record(mode: str, timings: dict, latencies_s: list[float], n_keyfram
     summary = {"mode": mode, "finished": finished, **(inputs or {}), "keyframes": n_keyframes, "landmarks": len(landmarks),
                "matched_landmarks": sum(lm.face is not None for lm in landmarks),
                "matched_faces": len({lm.face for lm in landmarks if lm.face is not None}),
+               # matches the alignment does not keep whole: walls found off plan (offline GNC)
+               "off_plan_landmarks": sum(lm.face is not None and lm.alignment != "kept" for lm in landmarks),
                "timings_s": {k: round(v, 6) for k, v in timings.items()}}
     if latencies_s:
         ms = np.asarray(latencies_s) * 1e3

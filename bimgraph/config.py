@@ -310,7 +310,7 @@ class OfflineConfig(Section):
     relative_error_tol: float = Field(1e-6, gt=0, description="Levenberg-Marquardt stops when the error improves less than this fraction")
     merge_gate: float = Field(100.0, gt=0, description="two landmarks matched to one face merge unless their squared Mahalanobis distance as one plane exceeds this; far above the SLAM gate, since landmark covariances ignore the sensor's errors shared by neighbouring keyframes (measured: same wall up to 44, a board leaning on it 140 and more)")
     gnc: bool = Field(True, description="robust alignment: graduated non-convexity (Geman-McClure) decides which plane-to-BIM factors the alignment keeps (walls consistent with each other) and which walls it only measures (built off plan), whatever the walls seen first")
-    gnc_probability: float = Field(0.99, gt=0, lt=1, description="GNC keeps a plane-to-BIM factor whose squared whitened residual ends below this chi-square quantile (3 dof; 0.99: about 3.4 sigma), and sets the kernel's width")
+    gnc_probability: float = Field(0.99, gt=0, lt=1, description="GNC keeps a plane-to-BIM factor whole if its squared whitened residual ends below this chi-square quantile (3 dof; 0.99: about 3.4 sigma), else its direction alone if that is below the 2-dof quantile (the wall built parallel to plan, off its line); it also sets the GNC kernel's width")
     gnc_step: float = Field(1.4, gt=1, description="GNC lowers the surrogate's convexity by this factor per step (the paper's 1.4)")
     gnc_iterations: int = Field(5, ge=1, description="Levenberg-Marquardt iterations per GNC step (each starts where the last ended)")
 

@@ -305,7 +305,7 @@ class Isam2Config(Section):
 class OfflineConfig(Section):
     """Offline (batch) mode."""
 
-    max_rounds: int = Field(5, ge=1, description="optimise, re-associate, repeat at most this many times")
+    max_rounds: int = Field(5, ge=1, description="optimise, re-associate, repeat at most this many times (graduated non-convexity may add two rounds after these)")
     max_iterations: int = Field(50, ge=1, description="Levenberg-Marquardt iterations per round")
     relative_error_tol: float = Field(1e-6, gt=0, description="Levenberg-Marquardt stops when the error improves less than this fraction")
     merge_gate: float = Field(100.0, gt=0, description="two landmarks matched to one face merge unless their squared Mahalanobis distance as one plane exceeds this; far above the SLAM gate, since landmark covariances ignore the sensor's errors shared by neighbouring keyframes (measured: same wall up to 44, a board leaning on it 140 and more)")

@@ -97,7 +97,7 @@ def evaluate(plane_map: PlaneMap, keyframes, initial, truth, T_B_C_true, T_B_S_t
              kinds: dict | None = None) -> dict:
     """Run the offline backend with the deviation step and score it. `kinds` maps (keyframe,
     observation) to the true kind of surface observed (wall, clutter, ...), if known."""
-    est = OfflineEstimator(plane_map, backend_cfg, initial, oracle=oracle, deviations=dev_cfg)
+    est = OfflineEstimator(plane_map, backend_cfg, initial, oracle=oracle)
     start = time.perf_counter()
     res = est.run(keyframes)
     t_backend = time.perf_counter() - start

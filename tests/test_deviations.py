@@ -165,7 +165,9 @@ def test_a_face_only_the_plan_constrains_is_not_measurable():
     (Deviation(0.10, 0.015, 0.1, 0.05), 10, "deviating"),  # uncertain, but far beyond tolerance
     (Deviation(0.01, 0.015, 0.1, 0.05), 10, "not_enough_evidence"),  # inside, but too uncertain to say so
     (Deviation(0.01, 0.002, 0.1, 0.9), 10, "not_enough_evidence"),
-    (Deviation(0.025, 0.004, 0.1, 0.05), 10, "not_enough_evidence"),  # beyond, but not by 2 sigma
+    (Deviation(0.025, 0.004, 0.1, 0.05), 10, "not_enough_evidence"),  # beyond, but not by 3 sigma
+    (Deviation(0.03, 0.004, 0.1, 0.05), 10, "not_enough_evidence"),  # 2.5 sigma beyond: not sure enough
+    (Deviation(0.0325, 0.004, 0.1, 0.05), 10, "deviating"),  # 3.1 sigma beyond
 ])
 def test_status_rules(dev, n, status):
     assert classify(dev, n, CFG) == status

@@ -8,9 +8,10 @@ and which walls end up "right" depends on where the optimisation starts, i.e. on
 first. GNC starts from a surrogate of the Geman-McClure cost that is convex over every
 residual (`mu` large: nearly least squares, where the walls consistent with each other
 outvote a deviating one), and lowers `mu` step by step to the robust cost itself, re-weighting
-between solves. Geman-McClure rather than truncated least squares: the start is the causal
-pass's estimate, which may already follow a deviating wall, and TLS's first surrogate all but
-ignores the residuals that are large there (measured: it keeps the wrong wall).
+between solves. Geman-McClure rather than truncated least squares: the start is the offline
+round's estimate under the robust kernel, which may already follow a deviating wall, and TLS's
+first surrogate all but ignores the residuals that are large there (measured: it keeps the
+wrong wall).
 """
 
 from __future__ import annotations

@@ -33,7 +33,7 @@ from bimgraph.backend.associate_slam import same_plane_d2
 from bimgraph.backend.online import Backend, Oracle, misfit, observations_of, revision_reason, unmatch
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
 from bimgraph.bim.planemap import PlaneMap
-from bimgraph.config import BackendConfig, DeviationConfig
+from bimgraph.config import BackendConfig
 from bimgraph.geometry import inverse, plane_from_frame
 from bimgraph.sequence.format import Keyframe
 from factors.plane import predict_local_plane
@@ -47,11 +47,8 @@ _FREE_OFFSET_M = 100.0
 
 class OfflineEstimator:
     def __init__(self, plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,
-                 listener: Listener | None = None, oracle: Oracle | None = None,
-                 deviations: DeviationConfig | None = None):
+                 listener: Listener | None = None, oracle: Oracle | None = None):
         self.cfg = cfg
-        self.plane_map = plane_map
-        self.deviations = deviations or DeviationConfig()
         self.apart: set[tuple[int, str]] = set()  # (landmark, face) pairs merging found not one plane
         # GNC's verdict on each (landmark, face) pair it judged (KEPT, DIRECTION or OUT)
         self.verdicts: dict[tuple[int, str], str] = {}
@@ -130,39 +127,46 @@ class OfflineEstimator:
         """Judge which plane-to-BIM factors the alignment keeps whole (`KEPT`); of the others,
         the wall's direction is kept where it fits and only its offset is left to the
         observations (`DIRECTION`: built parallel to plan, off its line), else the factor
-        goes (`OUT`). Either way the landmark keeps its face, to be measured.
+        goes (`OUT`). The landmark keeps its face, to be measured (unless a later round's
+        revision finds it too far off to be that wall at all).
 
-        The objective is truncated least squares: a factor not kept whole costs `c^2` whatever
-        its residual. It has two starts: the robust kernel's estimate, which the walls seen
-        first decide, and graduated non-convexity's (`bimgraph.backend.gnc`), which the
-        majority of walls decides; the one of lower cost wins. So a wall moved in the first
-        room cannot hold the alignment against the rest, nor can several walls moved alike
-        outvote consistent walls that the kernel already follows."""
+        The objective is truncated least squares: every factor but the plane-to-BIM ones, plus
+        `min(r^2, c^2)` of each of those. It has two starts: the round's estimate under the
+        robust kernel (and the earlier verdicts, if GNC ran before), which the walls seen first
+        decide, and graduated non-convexity's (`bimgraph.backend.gnc`), which the majority of
+        walls decides. Each start is judged and re-solved under its verdicts; the one of lower
+        cost wins. So a wall moved in the first room cannot hold the alignment against the
+        rest, nor can several walls moved alike outvote consistent walls that the kernel
+        already follows."""
         cfg = self.cfg.offline
         matches = self._matches()
         c2, c2_direction = chi2.ppf(cfg.gnc_probability, 3), chi2.ppf(cfg.gnc_probability, 2)
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(cfg.gnc_iterations)
         params.setRelativeErrorTol(cfg.relative_error_tol)
+        without_bim = self._graph(keyframes, observations, lambda lm: None)
 
-        def truncated(values):
+        def judged(values):
             """The verdicts at `values`, the estimate under them, and its TLS cost."""
             whole = self._squared_residuals(matches, values) <= c2
             direction = self._squared_residuals(matches, values, free_offset=True) <= c2_direction
             verdicts = {m: KEPT if w else DIRECTION if d else OUT for m, w, d in zip(matches, whole, direction)}
             graph = self._graph(keyframes, observations, lambda lm: self._bim_factor(lm, 1.0, verdicts[lm.id, lm.face]))
             values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-            return graph.error(values) + 0.5 * c2 * float(np.sum(~whole)), verdicts, values
+            truncated = np.minimum(self._squared_residuals(matches, values), c2)
+            return without_bim.error(values) + 0.5 * float(truncated.sum()), verdicts, values
 
-        kernel = truncated(values)
+        candidates = [judged(values)]
         r2 = self._squared_residuals(matches, values)
         mu = gnc.initial_mu(r2, c2)
-        for mu in gnc.schedule(mu, cfg.gnc_step) if mu is not None else []:
-            weights = dict(zip(matches, gnc.gm_weights(r2, mu, c2)))
-            graph = self._graph(keyframes, observations, lambda lm: self._bim_factor(lm, weights[lm.id, lm.face]))
-            values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-            r2 = self._squared_residuals(matches, values)
-        _, self.verdicts, values = min(kernel, truncated(values), key=lambda candidate: candidate[0])
+        if mu is not None:
+            for mu in gnc.schedule(mu, cfg.gnc_step):
+                weights = dict(zip(matches, gnc.gm_weights(r2, mu, c2)))
+                graph = self._graph(keyframes, observations, lambda lm: self._bim_factor(lm, weights[lm.id, lm.face]))
+                values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+                r2 = self._squared_residuals(matches, values)
+            candidates.append(judged(values))
+        _, self.verdicts, values = min(candidates, key=lambda candidate: candidate[0])
         return values
 
     def _squared_residuals(self, matches: list[tuple[int, str]], values: gtsam.Values, free_offset: bool = False) -> np.ndarray:
@@ -280,7 +284,7 @@ class OfflineEstimator:
             self.landmarks.set_estimate(lm.id, values.atOrientedPlane3(L(lm.id)).planeCoefficients(),
                                         values.atPose3(X(lm.anchor)).matrix())
 
-    def _bim_factor(self, lm, weight: float | None = None, verdict: str = "kept") -> gtsam.NonlinearFactor | None:
+    def _bim_factor(self, lm, weight: float | None = None, verdict: str = KEPT) -> gtsam.NonlinearFactor | None:
         """The landmark's plane-to-BIM factor: Gaussian with `weight`, or under the robust
         kernel (None); with the offset left free for `DIRECTION`, none for `OUT`."""
         if verdict == OUT:
@@ -329,6 +333,5 @@ class OfflineEstimator:
 
 
 def run_offline(keyframes: list[Keyframe], plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,
-                listener: Listener | None = None, oracle: Oracle | None = None,
-                deviations: DeviationConfig | None = None) -> Results:
-    return OfflineEstimator(plane_map, cfg, initial, listener, oracle, deviations).run(keyframes)
+                listener: Listener | None = None, oracle: Oracle | None = None) -> Results:
+    return OfflineEstimator(plane_map, cfg, initial, listener, oracle).run(keyframes)

@@ -136,7 +136,7 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
         if seeds:
             initial = seed_alignment(sequence.keyframes, plane_map, list(seeds), cfg, initial)
     if mode == "offline":
-        results = run_offline(sequence.keyframes, plane_map, cfg.backend, initial, listener, truth, deviations=cfg.deviations)
+        results = run_offline(sequence.keyframes, plane_map, cfg.backend, initial, listener, truth)
         write_results(out_dir, results, named)
         write_deviation_outputs(out_dir, plane_map, results.observed_planes, results.T_B_S, results.T_B_C, meta.camera,
                                 cfg.deviations)

@@ -5,6 +5,7 @@ rooms, with one face of the plan moved, read through `observed_planes_isam2` and
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from bimgraph.backend.offline import OfflineEstimator
 from bimgraph.backend.online import Backend
@@ -114,3 +115,36 @@ def test_offline_gnc_measures_the_moved_wall_against_the_others(offline_runs, tm
     for f in data.faces:
         if f.offset_m is not None and f.face_id not in MOVED:
             assert abs(f.offset_m) < min(4 * f.offset_sigma_m + 0.005, 0.015), f
+
+
+def tilted_plan(plane_map: PlaneMap, face_id: str, deg: float) -> PlaneMap:
+    """The plan with `face_id` turned by `deg` about the vertical through its centre: the
+    wall (as observed) was built out of line by that angle."""
+    R = Rotation.from_euler("z", deg, degrees=True).as_matrix()
+    faces = []
+    for f in plane_map.faces:
+        if f.id == face_id:
+            c = np.asarray(f.centre)
+            n = R @ np.asarray(f.normal)
+            f = f.model_copy(update={"normal": tuple(n), "offset": float(-n @ c),
+                                     "polygon": [tuple(c + R @ (np.asarray(p) - c)) for p in f.polygon]})
+        faces.append(f)
+    return PlaneMap(faces=faces)
+
+
+def test_offline_gnc_takes_a_wall_built_out_of_line_out_of_the_alignment(tmp_path):
+    """A wall turned 2 deg from plan, against a 0.5 deg direction tolerance: not even its
+    direction can be kept (verdict "out"), and the report measures its tilt."""
+    scene = make_scene(160, rooms=(2, 1), seed=0, drift_rot_deg=0.01, drift_trans_m=0.001)
+    plan = tilted_plan(scene.plane_map, "r00E", 2.0)
+    cfg = BackendConfig()
+    cfg.noise.bim_normal_deg = 0.5
+    est = OfflineEstimator(plan, cfg, scene.initial)
+    res = est.run(scene.keyframes)
+    assert {face: verdict for (_, face), verdict in est.verdicts.items() if verdict != "kept"} == {"r00E": "out"}
+    assert ate(res.T_B_C, np.asarray(scene.T_B_C)) < 0.015
+    camera = Camera(width=640, height=480, fx=525.0, fy=525.0, cx=319.5, cy=239.5)
+    data = write_deviation_outputs(tmp_path, plan, res.observed_planes, res.T_B_S, res.T_B_C, camera, DeviationConfig())
+    tilted = next(f for f in data.faces if f.face_id == "r00E")
+    assert tilted.status == "deviating"
+    assert abs(tilted.tilt_deg - 2.0) < 3 * tilted.tilt_sigma_deg

@@ -37,6 +37,12 @@ def transform_points(T_A_B: np.ndarray, points_B: np.ndarray) -> np.ndarray:
     return points_B @ T_A_B[:3, :3].T + T_A_B[:3, 3]
 
 
+# How the alignment uses a matched landmark's plane-to-BIM factor: kept whole; the wall's
+# direction kept and its offset left to the observations; or out of the alignment. Offline GNC
+# decides (a wall found off plan is measured, not followed); online every match is kept.
+KEPT, DIRECTION, OUT = "kept", "direction", "out"
+
+
 @dataclass
 class Landmark:
     id: int
@@ -55,9 +61,8 @@ class Landmark:
     observation_faces: list | None = None  # per observation, the face behind it, once resolved
     bim_attempt: int = 0  # observation count when last scored against the BIM faces
     merged_into: int | None = None  # set when an offline round found it to be another landmark's plane
-    # how the alignment uses its plane-to-BIM factor: "kept"; offline GNC may find the wall off
-    # plan and keep only its direction ("direction") or none of it ("out")
-    alignment: str = "kept"
+    # how the alignment uses its plane-to-BIM factor (offline GNC decides; see below)
+    alignment: str = KEPT
 
     def absorb(self, other: "Landmark", max_points: int) -> None:
         """Take over the observations and extent of a landmark found to be the same plane."""

@@ -28,7 +28,7 @@ from bimgraph.backend import gnc
 from bimgraph.backend.alignment import Alignment
 from bimgraph.backend.associate_bim import PlaneInB, plane_in_B
 from bimgraph.backend.graph import E, L, X, cov_T_B_S, pose3
-from bimgraph.backend.landmarks import Landmark, transform_points
+from bimgraph.backend.landmarks import DIRECTION, KEPT, OUT, Landmark, transform_points
 from bimgraph.backend.associate_slam import same_plane_d2
 from bimgraph.backend.online import Backend, Oracle, misfit, observations_of, revision_reason, unmatch
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
@@ -38,9 +38,6 @@ from bimgraph.geometry import inverse, plane_from_frame
 from bimgraph.sequence.format import Keyframe
 from factors.plane import predict_local_plane
 
-# GNC's verdicts on a plane-to-BIM factor: kept whole; the wall's direction kept, its offset
-# left to the observations; or out of the alignment.
-KEPT, DIRECTION, OUT = "kept", "direction", "out"
 # An offset tolerance that leaves the offset to the observations (metres: no wall is this far off).
 _FREE_OFFSET_M = 100.0
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bimgraph.backend.landmarks import Landmark
+from bimgraph.backend.landmarks import KEPT, Landmark
 from bimgraph.backend.records import KeyframeResult, Results
 from bimgraph.files import write_json
 from bimgraph.geometry import plane_from_frame, pose_to_tum
@@ -83,7 +83,7 @@ def summary_record(mode: str, timings: dict, latencies_s: list[float], n_keyfram
                "matched_landmarks": sum(lm.face is not None for lm in landmarks),
                "matched_faces": len({lm.face for lm in landmarks if lm.face is not None}),
                # matches the alignment does not keep whole: walls found off plan (offline GNC)
-               "off_plan_landmarks": sum(lm.face is not None and lm.alignment != "kept" for lm in landmarks),
+               "off_plan_landmarks": sum(lm.face is not None and lm.alignment != KEPT for lm in landmarks),
                "timings_s": {k: round(v, 6) for k, v in timings.items()}}
     if latencies_s:
         ms = np.asarray(latencies_s) * 1e3

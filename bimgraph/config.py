@@ -313,6 +313,11 @@ class OfflineConfig(Section):
     gnc_probability: float = Field(0.99, gt=0, lt=1, description="GNC keeps a plane-to-BIM factor whole if its squared whitened residual ends below this chi-square quantile (3 dof; 0.99: about 3.4 sigma), else its direction alone if that is below the 2-dof quantile (the wall built parallel to plan, off its line); it also sets the GNC kernel's width")
     gnc_step: float = Field(1.4, gt=1, description="GNC lowers the surrogate's convexity by this factor per step (the paper's 1.4)")
     gnc_iterations: int = Field(5, ge=1, description="Levenberg-Marquardt iterations per GNC step (each starts where the last ended)")
+    estimate_tolerance: bool = Field(True, description="after GNC, tighten the plane-to-BIM tolerance (noise.bim_*) to what the kept walls show: variance component estimation, its upper confidence bound; never looser than configured")
+    tolerance_confidence: float = Field(0.95, gt=0, lt=1, description="confidence of that upper bound (a few walls cannot talk the tolerance down)")
+    tolerance_floor_deg: float = Field(0.1, gt=0, description="the estimated normal tolerance is at least this...")
+    tolerance_floor_m: float = Field(0.002, gt=0, description="...and the offset tolerance at least this (what plans and sensors resolve)")
+    tolerance_rounds: int = Field(3, ge=1, description="estimate, re-judge with GNC's thresholds, re-solve: at most this many times per GNC")
 
 
 class BackendConfig(Section):

@@ -7,6 +7,7 @@ optimisers); the Python versions here are the readable reference the tests hold 
 
 from factors.plane import (
     error_jacobian_wrt_plane,
+    face_tolerance_coordinates,
     face_tolerance_cov,
     local_plane_error,
     predict_local_plane,
@@ -20,6 +21,7 @@ from factors.plane import (
 
 __all__ = [
     "error_jacobian_wrt_plane",
+    "face_tolerance_coordinates",
     "face_tolerance_cov",
     "local_plane_error",
     "predict_local_plane",

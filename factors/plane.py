@@ -100,21 +100,23 @@ def plane_to_bim_factor(plane_B, noise: gtsam.noiseModel.Base, key_T_S_B: int, k
     return local_plane_factor(plane_B, noise, key_T_S_B, key_anchor, key_plane)
 
 
-def face_tolerance_cov(basis: np.ndarray, centre: np.ndarray | None, sigma_normal_rad: float, sigma_offset_m: float) -> np.ndarray:
-    """Covariance of the plane-to-BIM residual `e = (basis^T n_B, d_F - d_B)` when the built
-    plane strays from the face by a tilt of `sigma_normal_rad` and an offset *at the face
-    centre* of `sigma_offset_m`, independently. Since `offset = e_3 - e_12 . c` with
-    `c = basis^T centre` (the face centre along the face), `e_3 = offset + e_12 . c`: a face far
-    from B's origin gets a large, correlated `e_3` variance, not the origin's `sigma_offset_m`,
-    which would let its tilt stand for metres of offset at the face. `centre` None: the
-    origin's foot on the plane (c = 0)."""
+def face_tolerance_coordinates(basis: np.ndarray, centre: np.ndarray | None) -> np.ndarray:
+    """The 3x3 map `M` from the plane-to-BIM residual `e = (basis^T n_B, d_F - d_B)` to the
+    as-built deviation it stands for, to first order: `(offset at the face centre, tilt_1,
+    tilt_2)` (m, rad, rad). Since the face centre is `c = basis^T centre` along the face,
+    `offset = e_3 - e_12 . c`. `centre` None: the origin's foot on the plane (c = 0)."""
     c = np.zeros(2) if centre is None else np.asarray(basis).T @ np.asarray(centre, dtype=float)
-    var_n = sigma_normal_rad**2
-    cov = np.zeros((3, 3))
-    cov[:2, :2] = var_n * np.eye(2)
-    cov[:2, 2] = cov[2, :2] = var_n * c
-    cov[2, 2] = sigma_offset_m**2 + var_n * c @ c
-    return cov
+    return np.array([[-c[0], -c[1], 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+
+
+def face_tolerance_cov(basis: np.ndarray, centre: np.ndarray | None, sigma_normal_rad: float, sigma_offset_m: float) -> np.ndarray:
+    """Covariance of the plane-to-BIM residual `e` when the built plane strays from the face
+    by a tilt of `sigma_normal_rad` and an offset *at the face centre* of `sigma_offset_m`,
+    independently (`face_tolerance_coordinates`). A face far from B's origin so gets a large,
+    correlated `e_3` variance, not the origin's `sigma_offset_m`, which would let its tilt
+    stand for metres of offset at the face."""
+    M_inv = np.linalg.inv(face_tolerance_coordinates(basis, centre))
+    return M_inv @ np.diag([sigma_offset_m**2, sigma_normal_rad**2, sigma_normal_rad**2]) @ M_inv.T
 
 
 def _custom(plane_z, noise, keys):

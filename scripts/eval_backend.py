@@ -11,6 +11,7 @@ the last keyframe / causal trajectory), offline, and offline given the true asso
 from __future__ import annotations
 
 import argparse
+import math
 import time
 from pathlib import Path
 
@@ -42,8 +43,12 @@ def evaluate(root: Path, cfg) -> list[dict]:
         rot_deg, trans_cm = extrinsic_error(results.T_B_S, gt.T_B_S)
         rows.append({"sequence": root.name, "mode": mode, "precision": precision, "recall": recall, "rot_deg": rot_deg,
                      "trans_cm": trans_cm, "ate_cm": 100 * ate(results.T_B_C, gt.T_B_C), "frontend_ate_cm": 100 * frontend,
-                     "seconds": seconds, "unobservable": [u["kind"][0] + str([round(a, 2) for a in u["axis_B"]]) for u in results.unobservable]})
+                     "seconds": seconds, "tolerance": results.bim_tolerance, "unobservable": [u["kind"][0] + str([round(a, 2) for a in u["axis_B"]]) for u in results.unobservable]})
     return rows
+
+
+def tolerance(value) -> str:
+    return "" if value is None else f"{math.degrees(value[0]):.2f}, {1000 * value[1]:.1f}"
 
 
 def main():
@@ -52,12 +57,12 @@ def main():
     parser.add_argument("--config", type=Path, default=None)
     args = parser.parse_args()
     cfg = load_config(args.config)
-    print("| sequence | mode | precision | recall | T_B_S error deg | cm | ATE cm | front-end ATE cm | s | unobservable |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("| sequence | mode | precision | recall | T_B_S error deg | cm | ATE cm | front-end ATE cm | s | wall tolerance deg, mm | unobservable |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for root in args.sequences:
         for r in evaluate(root, cfg):
             print(f"| {r['sequence']} | {r['mode']} | {r['precision']:.4f} | {r['recall']:.4f} | {r['rot_deg']:.3f} | {r['trans_cm']:.2f} "
-                  f"| {r['ate_cm']:.2f} | {r['frontend_ate_cm']:.1f} | {r['seconds']:.1f} | {' '.join(r['unobservable'])} |", flush=True)
+                  f"| {r['ate_cm']:.2f} | {r['frontend_ate_cm']:.1f} | {r['seconds']:.1f} | {tolerance(r['tolerance'])} | {' '.join(r['unobservable'])} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -148,3 +148,33 @@ def test_offline_gnc_takes_a_wall_built_out_of_line_out_of_the_alignment(tmp_pat
     tilted = next(f for f in data.faces if f.face_id == "r00E")
     assert tilted.status == "deviating"
     assert abs(tilted.tilt_deg - 2.0) < 3 * tilted.tilt_sigma_deg
+
+
+def test_offline_tightens_the_tolerance_to_what_the_walls_show(tmp_path):
+    """The sound walls of the synthetic rooms are exactly as planned: the tolerance estimated
+    from them is well inside the configured 1.5 cm, so every sound face is measured well
+    enough to say it is within tolerance (with the configured one, none is), and the moved
+    wall is still found and measured."""
+    scene = make_scene(160, rooms=(2, 1), seed=0, drift_rot_deg=0.01, drift_trans_m=0.001)
+    plan = moved_plan(scene.plane_map)
+    camera = Camera(width=640, height=480, fx=525.0, fy=525.0, cx=319.5, cy=239.5)
+    status = {}
+    for estimate in (False, True):
+        cfg = BackendConfig()
+        cfg.offline.estimate_tolerance = estimate
+        est = OfflineEstimator(plan, cfg, scene.initial)
+        res = est.run(scene.keyframes)
+        data = write_deviation_outputs(tmp_path / str(estimate), plan, res.observed_planes, res.T_B_S, res.T_B_C, camera,
+                                       DeviationConfig())
+        status[estimate] = {f.face_id: f.status for f in data.faces if f.offset_m is not None}
+        if estimate:
+            assert res.bim_tolerance == est.tolerance
+            assert est.tolerance[1] < 0.01 and est.tolerance[0] < np.radians(0.5)
+            moved = next(f for f in data.faces if f.face_id == "r00E")
+            assert abs(moved.offset_m - MOVED["r00E"]) < min(3 * moved.offset_sigma_m, 0.01)
+            assert ate(res.T_B_C, np.asarray(scene.T_B_C)) < 0.01
+    sound = set(status[True]) - set(MOVED)
+    assert len(sound) >= 6
+    assert {status[True][f] for f in sound} == {"within_tolerance"}
+    assert {status[False][f] for f in sound} == {"not_enough_evidence"}
+    assert status[True]["r00E"] == status[False]["r00E"] == "deviating"

@@ -90,15 +90,19 @@ class FactorBuilder:
         noise = _robust(n.plane_kernel, n.plane_kernel_width, self.plane_noise(cov))
         return local_plane_factor(plane_C, noise, X(k), X(anchor), L(j))
 
+    def bim_tolerance(self) -> tuple[float, float]:
+        """The configured as-built tolerance of a wall: (normal sigma in radians, offset sigma in metres)."""
+        return float(np.radians(self.cfg.noise.bim_normal_deg)), self.cfg.noise.bim_offset_m
+
     def bim(self, anchor: int, j: int, plane_B: np.ndarray, centre_B: np.ndarray | None,
-            weight: float | None = None, offset_m: float | None = None) -> gtsam.NonlinearFactor:
+            weight: float | None = None, tolerance: tuple[float, float] | None = None) -> gtsam.NonlinearFactor:
         """Landmark j (anchored at `anchor`) is the face `plane_B`, within the as-built
-        tolerance about the face's centre `centre_B` (offset: `offset_m`, default the
-        configured one): under the configured robust kernel, or, given a `weight` (graduated
-        non-convexity decides it), Gaussian with that weight."""
+        `tolerance` (normal sigma in radians, offset sigma in metres; default the configured
+        one) about the face's centre `centre_B`: under the configured robust kernel, or, given
+        a `weight` (graduated non-convexity decides it), Gaussian with that weight."""
         n = self.cfg.noise
         basis = gtsam.Unit3(np.asarray(plane_B[:3], dtype=float)).basis()
-        cov = face_tolerance_cov(basis, centre_B, np.radians(n.bim_normal_deg), offset_m or n.bim_offset_m)
+        cov = face_tolerance_cov(basis, centre_B, *(tolerance or self.bim_tolerance()))
         if weight is None:
             noise = _robust(n.bim_kernel, n.bim_kernel_width, gtsam.noiseModel.Gaussian.Covariance(cov))
         else:

@@ -24,7 +24,7 @@ import gtsam
 import numpy as np
 from scipy.stats import chi2
 
-from bimgraph.backend import gnc
+from bimgraph.backend import gnc, tolerance
 from bimgraph.backend.alignment import Alignment
 from bimgraph.backend.associate_bim import PlaneInB, plane_in_B
 from bimgraph.backend.graph import E, L, X, cov_T_B_S, pose3
@@ -36,7 +36,7 @@ from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig
 from bimgraph.geometry import inverse, plane_from_frame
 from bimgraph.sequence.format import Keyframe
-from factors.plane import predict_local_plane
+from factors.plane import face_tolerance_coordinates, local_plane_error, predict_local_plane
 
 # An offset tolerance that leaves the offset to the observations (metres: no wall is this far off).
 _FREE_OFFSET_M = 100.0
@@ -54,6 +54,8 @@ class OfflineEstimator:
         self.online = Backend(plane_map, cfg, initial, None, oracle, covariance=False)
         self.faces, self.bim, self.landmarks = self.online.faces, self.online.bim, self.online.landmarks
         self.oracle = oracle
+        # the plane-to-BIM tolerance (normal rad, offset m): configured, tightened after GNC
+        self.tolerance = self.online.build.bim_tolerance()
 
     def run(self, keyframes: list[Keyframe]) -> Results:
         start = time.perf_counter()
@@ -164,7 +166,35 @@ class OfflineEstimator:
                 r2 = self._squared_residuals(matches, values)
             candidates.append(judged(values))
         _, self.verdicts, values = min(candidates, key=lambda candidate: candidate[0])
+        for _ in range(cfg.tolerance_rounds if cfg.estimate_tolerance else 0):
+            estimated = self._estimated_tolerance(keyframes, observations, values)
+            if np.allclose(estimated, self.tolerance, rtol=0.1):
+                break
+            self.tolerance = estimated
+            _, self.verdicts, values = judged(values)
         return values
+
+    def _estimated_tolerance(self, keyframes: list[Keyframe], observations, values: gtsam.Values) -> tuple[float, float]:
+        """The tolerance the kept plane-to-BIM factors show at `values` (solved under the
+        current verdicts, Gaussian): `bimgraph.backend.tolerance`."""
+        from bimgraph.deviations.graph import joint_covariance
+
+        graph = self._graph(keyframes, observations, lambda lm: self._bim_factor(lm, 1.0, self.verdicts[lm.id, lm.face]))
+        marginals = gtsam.Marginals(graph, values)
+        T_S_B = values.atPose3(E)
+        whiten = 1.0 / np.array([self.tolerance[1], self.tolerance[0], self.tolerance[0]])
+        terms = []
+        for (j, face), verdict in self.verdicts.items():
+            if verdict != KEPT:
+                continue
+            lm, row = self.landmarks[j], self.faces.row[face]
+            plane_B = self.faces.planes[row]
+            e, J = local_plane_error(T_S_B, values.atPose3(X(lm.anchor)), values.atOrientedPlane3(L(j)), plane_B, jacobians=True)
+            M = whiten[:, None] * face_tolerance_coordinates(gtsam.Unit3(plane_B[:3]).basis(), self.faces.centres[row])
+            terms.append(tolerance.redundancy(M @ np.hstack(J), M @ e, joint_covariance(marginals, [E, X(lm.anchor), L(j)])))
+        cfg = self.cfg.offline
+        return tolerance.tightened(self.tolerance, tolerance.variance_factors(terms, cfg.tolerance_confidence),
+                                   self.online.build.bim_tolerance(), (np.radians(cfg.tolerance_floor_deg), cfg.tolerance_floor_m))
 
     def _squared_residuals(self, matches: list[tuple[int, str]], values: gtsam.Values, free_offset: bool = False) -> np.ndarray:
         """Squared whitened residuals of the plane-to-BIM factors (Gaussian, weight 1), or of
@@ -274,7 +304,8 @@ class OfflineEstimator:
         return Results(mode="offline", indices=[kf.index for kf in keyframes], stamps=[kf.stamp for kf in keyframes],
                        T_S_C=T_S_C, T_B_C=[T_B_S @ p for p in T_S_C], T_B_S=T_B_S, cov_T_B_S=cov,
                        unobservable=self.online.unobservable_with(normals),
-                       landmarks=self._active(), timings=timings, rounds=rounds, observed_planes=planes)
+                       landmarks=self._active(), timings=timings, rounds=rounds, observed_planes=planes,
+                       bim_tolerance=self.tolerance)
 
     def _refresh(self, values: gtsam.Values) -> None:
         for lm in self._active():
@@ -287,8 +318,9 @@ class OfflineEstimator:
         if verdict == OUT:
             return None
         row = self.faces.row[lm.face]
-        offset_m = _FREE_OFFSET_M if verdict == DIRECTION else None
-        return self.online.build.bim(lm.anchor, lm.id, self.faces.planes[row], self.faces.centres[row], weight, offset_m)
+        normal_rad, offset_m = self.tolerance
+        tolerance = (normal_rad, _FREE_OFFSET_M if verdict == DIRECTION else offset_m)
+        return self.online.build.bim(lm.anchor, lm.id, self.faces.planes[row], self.faces.centres[row], weight, tolerance)
 
     def _judged_factor(self, lm) -> gtsam.NonlinearFactor | None:
         """The factor as GNC judged it, under the robust kernel (also before it judged)."""

@@ -1,0 +1,68 @@
+"""Variance component estimation of the walls' as-built tolerance (`bimgraph.backend.tolerance`),
+on a linear problem whose answer is known: one 3-vector (offset, tilt, tilt) measured by N
+factors with independent errors of known spread, modelled with a wrong spread."""
+
+import numpy as np
+import pytest
+
+from bimgraph.backend import tolerance
+
+CONFIGURED = (np.radians(1.0), 0.015)
+FLOOR = (np.radians(0.01), 0.0001)
+
+
+def solve(n: int, true_sigma: np.ndarray, model_sigma: np.ndarray, seed: int = 0, outliers: int = 0):
+    """The factors' redundancy terms after a least-squares solve: x measured n times, the
+    first `outliers` of them 10 true sigma off in every component, half one way, half the other."""
+    rng = np.random.default_rng(seed)
+    z = rng.normal(size=(n, 3)) * true_sigma
+    z[:outliers] += 10 * true_sigma * np.where(np.arange(outliers) % 2, 1.0, -1.0)[:, None]
+    W = np.diag(1.0 / model_sigma)
+    cov = np.linalg.inv(n * W.T @ W)  # posterior of x, every factor in
+    x = z.mean(axis=0)
+    return [tolerance.redundancy(W, W @ (zi - x), cov) for zi in z]
+
+
+def test_redundancy_of_n_equal_factors_is_n_minus_one():
+    terms = solve(10, np.array([0.01, 0.01, 0.01]), np.array([0.01, 0.01, 0.01]))
+    dof = sum(r for _, r in terms)
+    np.testing.assert_allclose(dof, [9.0, 18.0])
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("outliers", [0, 100])
+def test_estimate_finds_walls_built_tighter_than_configured(seed, outliers):
+    """Also when a quarter of the factors are walls built off plan that GNC kept."""
+    true_sigma = np.array([0.003, np.radians(0.2), np.radians(0.2)])  # offset m, tilt rad
+    model = np.array([CONFIGURED[1], CONFIGURED[0], CONFIGURED[0]])
+    estimate = CONFIGURED
+    for _ in range(3):  # as offline does: re-weight, re-solve
+        terms = solve(400, true_sigma, model, seed, outliers)
+        estimate = tolerance.tightened(estimate, tolerance.variance_factors(terms, 0.95), CONFIGURED, FLOOR)
+        model = np.array([estimate[1], estimate[0], estimate[0]])
+    # an upper bound: at or a little above the truth with 400 factors (above it by the
+    # outliers' share when there are some)
+    high = 1.7 if outliers else 1.2  # a sum of squares would give 5x with them
+    assert true_sigma[0] <= estimate[1] < high * true_sigma[0]
+    assert true_sigma[1] <= estimate[0] < high * true_sigma[1]
+
+
+def test_few_factors_cannot_talk_the_tolerance_down_far():
+    true_sigma = np.array([0.003, np.radians(0.2), np.radians(0.2)])
+    model = np.array([CONFIGURED[1], CONFIGURED[0], CONFIGURED[0]])
+    terms = solve(5, true_sigma, model)
+    point = np.median([s[0] / r[0] for s, r in terms]) / 0.455
+    assert tolerance.variance_factors(terms, 0.95)[0] == pytest.approx(max(s[0] / r[0] for s, r in terms) / 0.455, rel=0.01)
+    assert tolerance.variance_factors(terms, 0.95)[0] > 2 * point  # with 5 factors, the bound is their largest
+    assert np.all(tolerance.variance_factors(terms[:2], 0.95) == 1.0)  # 2 say nothing
+
+
+def test_never_looser_than_configured_nor_tighter_than_the_floor():
+    loose = solve(100, np.array([0.05, 0.05, 0.05]), np.array([CONFIGURED[1], CONFIGURED[0], CONFIGURED[0]]))
+    assert tolerance.tightened(CONFIGURED, tolerance.variance_factors(loose, 0.95), CONFIGURED, FLOOR) == CONFIGURED
+    exact = solve(100, np.array([1e-9, 1e-9, 1e-9]), np.array([CONFIGURED[1], CONFIGURED[0], CONFIGURED[0]]))
+    assert tolerance.tightened(CONFIGURED, tolerance.variance_factors(exact, 0.95), CONFIGURED, FLOOR) == FLOOR
+
+
+def test_a_group_without_redundancy_keeps_its_tolerance():
+    assert np.all(tolerance.variance_factors([], 0.95) == 1.0)

@@ -9,8 +9,8 @@ sections of a wall are split per section, and landmarks matched to the same BIM 
 merged into one (the loop closures a drifting causal pass misses); until a
 round changes nothing. Once the association settles, graduated non-convexity judges which
 plane-to-BIM factors the alignment keeps (`_gnc`): the walls consistent with each other decide
-the extrinsic and the poses, and a wall built off plan is measured against them; the rounds
-then go on until neither changes.
+the extrinsic and the poses, and a wall built off plan is measured against them, to the
+tolerance the kept walls show; the rounds then go on until neither changes.
 """
 
 from __future__ import annotations
@@ -136,7 +136,11 @@ class OfflineEstimator:
         walls decides. Each start is judged and re-solved under its verdicts; the one of lower
         cost wins. So a wall moved in the first room cannot hold the alignment against the
         rest, nor can several walls moved alike outvote consistent walls that the kernel
-        already follows."""
+        already follows.
+
+        Then the tolerance is tightened to what the kept walls show
+        (`bimgraph.backend.tolerance`) and the winner judged again under it, until it settles:
+        a wall that fit the configured tolerance may not fit the building's own."""
         cfg = self.cfg.offline
         matches = self._matches()
         c2, c2_direction = chi2.ppf(cfg.gnc_probability, 3), chi2.ppf(cfg.gnc_probability, 2)

@@ -63,6 +63,25 @@ def test_online(scene, cfg):
     assert results.unobservable == [{"kind": "translation", "axis_B": [0.0, 0.0, 1.0]}]
 
 
+def test_online_freezes_the_floor_and_keeps_its_estimates():
+    """The floor, which no wall face can match, is frozen after `isam2.freeze_after`
+    observations (its later observations tie each keyframe to a copy of it); the walls are not.
+    The causal trajectory stays where the unfrozen graph puts it."""
+    scene = make_scene(160, rooms=(2, 1), seed=0)
+    runs = {}
+    for freeze_after in (5, 10_000):
+        cfg = BackendConfig()
+        cfg.isam2.freeze_after = freeze_after
+        runs[freeze_after] = run_online(scene.keyframes, scene.plane_map, cfg, scene.initial)
+    frozen = [lm for lm in runs[5].landmarks if lm.frozen is not None]
+    assert frozen and all(lm.face is None and abs(lm.plane_S[2]) > 0.9 for lm in frozen)  # the floor
+    assert all(lm.frozen is None for lm in runs[5].landmarks if lm.face is not None)
+    assert not any(lm.frozen is not None for lm in runs[10_000].landmarks)
+    steps = [np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in zip(runs[5].T_B_C, runs[10_000].T_B_C)]
+    assert max(steps) < 0.01
+    assert ate(runs[5].T_B_C, scene.T_B_C) < 1.2 * ate(runs[10_000].T_B_C, scene.T_B_C)
+
+
 def test_offline_close_to_oracle(scene, cfg):
     ours = run_offline(scene.keyframes, scene.plane_map, cfg, scene.initial)
     oracle = run_offline(scene.keyframes, scene.plane_map, cfg, scene.initial, oracle=scene.truth)

@@ -63,6 +63,8 @@ class Landmark:
     merged_into: int | None = None  # set when an offline round found it to be another landmark's plane
     # how the alignment uses its plane-to-BIM factor (offline GNC decides; see below)
     alignment: str = KEPT
+    # online, once frozen: (T_S_A, plane_A, cov_A) as they were; later observations use copies
+    frozen: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     def absorb(self, other: "Landmark", max_points: int) -> None:
         """Take over the observations and extent of a landmark found to be the same plane."""

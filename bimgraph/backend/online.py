@@ -82,8 +82,8 @@ class Backend:
     def process(self, kf: Keyframe) -> KeyframeResult:
         start = time.perf_counter()
         isam2_before = self.graph.update_seconds
-        k = kf.index
-        T_S_C_guess = self._add_pose(kf)
+        k, T_S_C_frontend = kf.index, kf.pose
+        T_S_C_guess = self._add_pose(k, T_S_C_frontend, kf.cov)
         observations = observations_of(kf, self.build.default_plane_cov)
         matches = self._match_observations(k, observations, T_S_C_guess)
         observed = [self._add_observation(k, obs, j, T_S_C_guess) for obs, j in zip(observations, matches)]
@@ -101,7 +101,7 @@ class Backend:
         T_S_C = values.atPose3(X(k)).matrix()
         T_S_B = values.atPose3(E)
         T_B_S = T_S_B.inverse().matrix()
-        self._previous = (k, kf.pose, T_S_C)
+        self._previous = (k, T_S_C_frontend, T_S_C)
         cov = cov_T_B_S(T_S_B, self.graph.marginal(E)) + self.locked_cov if self.covariance else np.full((6, 6), np.nan)
         result = KeyframeResult(
             index=k, stamp=kf.stamp, T_S_C=T_S_C, T_B_C=T_B_S @ T_S_C, T_B_S=T_B_S, cov_T_B_S=cov,
@@ -113,7 +113,9 @@ class Backend:
     def _face_of(self, j: int, T_B_S: np.ndarray) -> str | None:
         """The face behind landmark j's latest observation (a member of its matched group)."""
         lm = self.landmarks[j]
-        return self.faces.observation_faces(lm.face, lm.centres_in(T_B_S)[-1:])[0]
+        centre_A = lm.centres_A[-1]
+        centre_B = None if centre_A is None else transform_points(T_B_S @ lm.T_S_A, centre_A[None])[0]
+        return self.faces.observation_faces(lm.face, [centre_B])[0]
 
     def resolve_faces(self, T_B_S: np.ndarray) -> None:
         """Give every observation of every matched landmark its face, with the current estimate."""
@@ -130,18 +132,18 @@ class Backend:
         return unobservable_directions(normals_B, self.cfg.unobservable_min_angle_deg, self.gravity_aligned)
 
     # -- pieces -----------------------------------------------------------------------------
-    def _add_pose(self, kf: Keyframe) -> np.ndarray:
+    def _add_pose(self, k: int, T_S_C_frontend: np.ndarray, cov) -> np.ndarray:
         if self._previous is None:
-            self.graph.add(self.build.first_pose(kf.index, kf.pose))
-            guess = kf.pose
+            self.graph.add(self.build.first_pose(k, T_S_C_frontend))
+            guess = T_S_C_frontend
         else:
             k_prev, T_S_Cprev_frontend, T_S_Cprev = self._previous
-            T_prev_k = inverse(T_S_Cprev_frontend) @ kf.pose
-            self.graph.add(self.build.odometry(k_prev, kf.index, T_prev_k, kf.cov))
+            T_prev_k = inverse(T_S_Cprev_frontend) @ T_S_C_frontend
+            self.graph.add(self.build.odometry(k_prev, k, T_prev_k, cov))
             guess = T_S_Cprev @ T_prev_k
             if self.gravity_aligned:  # (the first pose's prior holds its tilt already)
-                self.graph.add(self.build.gravity(kf.index, kf.pose))
-        self.graph.insert_pose(kf.index, guess)
+                self.graph.add(self.build.gravity(k, T_S_C_frontend))
+        self.graph.insert_pose(k, guess)
         return guess
 
     def _match_observations(self, k: int, observations: list[Observation], T_S_C: np.ndarray) -> list[int | None]:
@@ -167,13 +169,23 @@ class Backend:
             if face is not None:
                 self._landmark_of_face[face] = j
                 self._set_face(j, face, 0.0)
+        elif self.landmarks[j].frozen is not None:
+            self.graph.add_frozen_observation(k, *self.landmarks[j].frozen, obs.plane_C, obs.cov)
         else:
             self.graph.add(self.build.observation(k, self.landmarks[j].anchor, j, obs.plane_C, obs.cov))
         lm = self.landmarks[j]
         lm.add_observation(k, obs.index, transform_points(inverse(lm.T_S_A) @ T_S_C, obs.points_C), obs.area,
                            self.cfg.slam_association.extent_max_points)
         self.landmarks.update_sphere(j)
+        if lm.frozen is None and len(lm.observations) >= self.cfg.isam2.freeze_after and not self._matchable(lm):
+            lm.frozen = (lm.T_S_A, lm.plane_A, lm.cov_A)
         return j
+
+    def _matchable(self, lm: Landmark) -> bool:
+        """Whether some face of the map is within the association's normal angle of the
+        landmark (with the initial alignment's rotation, which is good to a few degrees)."""
+        n_B = self.prior.T_B_S[:3, :3] @ lm.plane_S[:3]
+        return bool((self.faces.planes[:, :3] @ n_B >= np.cos(np.radians(self.cfg.bim_association.max_normal_angle_deg))).any())
 
     def _keys_of(self, js) -> list[int]:
         return [L(j) for j in js] + [X(self.landmarks[j].anchor) for j in js]

@@ -77,7 +77,6 @@ class Backend:
         self._landmark_of_face: dict[str, int] = {}
         self._previous: tuple[int, np.ndarray, np.ndarray] | None = None  # index, front-end pose, estimate
         self._count = 0
-        self._cov_E: np.ndarray | None = None  # E's marginal covariance, as last read
 
     # -- the step ---------------------------------------------------------------------------
     def process(self, kf: Keyframe) -> KeyframeResult:
@@ -93,8 +92,7 @@ class Backend:
         values = self.graph.update(self._keys_of(refresh) + [X(k), E])
         self._refresh(values, refresh, [j for j in set(observed) if self._covariance_due(j)])
 
-        bim_changed = self._revise(observed, values.atPose3(E)) | self._associate(observed, values.atPose3(E))
-        if bim_changed:
+        if self._revise(observed, values.atPose3(E)) | self._associate(observed, values.atPose3(E)):
             for _ in range(self.cfg.isam2.extra_updates):
                 self.graph.update()
             values = self.graph.update(self._keys_of(observed) + [X(k), E])
@@ -104,10 +102,7 @@ class Backend:
         T_S_B = values.atPose3(E)
         T_B_S = T_S_B.inverse().matrix()
         self._previous = (k, T_S_C_frontend, T_S_C)
-        # E's marginal moves with the plane-to-BIM factors, little with a keyframe more
-        if self.covariance and (bim_changed or self._cov_E is None or self._count % self.cfg.isam2.covariance_every == 0):
-            self._cov_E = self.graph.marginal(E)
-        cov = cov_T_B_S(T_S_B, self._cov_E) + self.locked_cov if self.covariance else np.full((6, 6), np.nan)
+        cov = cov_T_B_S(T_S_B, self.graph.marginal(E)) + self.locked_cov if self.covariance else np.full((6, 6), np.nan)
         result = KeyframeResult(
             index=k, stamp=kf.stamp, T_S_C=T_S_C, T_B_C=T_B_S @ T_S_C, T_B_S=T_B_S, cov_T_B_S=cov,
             associations=[Association(obs.index, j, self._face_of(j, T_B_S)) for obs, j in zip(observations, observed)],

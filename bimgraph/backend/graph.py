@@ -157,7 +157,11 @@ class IncrementalGraph:
         by priors, so that the factor touches no variable that other keyframes share: a plane
         seen from everywhere (the floor) would otherwise put itself and its anchor into every
         clique's separator of iSAM2's Bayes tree, and every update would back-substitute the
-        whole tree (measured: 5 ms per keyframe at 2000 keyframes, 0.5 ms without)."""
+        whole tree (measured: 5 ms per keyframe at 2000 keyframes, 0.5 ms without). Each copy
+        carries the plane's whole uncertainty as if it were its own, so the poses' marginals
+        come out optimistic where the frozen plane is all that holds them (measured on the
+        two-room test world: height 7 mm against 15 mm unfrozen, tilt 0.15 against 0.20 deg;
+        the extrinsic's 2.5 %)."""
         anchor, plane = ANCHOR_COPY(self._copies), PLANE_COPY(self._copies)
         self._copies += 1
         self._values.insert(anchor, pose3(T_S_A))

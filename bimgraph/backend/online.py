@@ -232,7 +232,8 @@ class Backend:
     def _associate(self, observed: list[int], T_S_B: gtsam.Pose3) -> bool:
         if self.oracle is not None:
             return False
-        todo = [j for j in sorted(set(observed)) if self.landmarks[j].face is None
+        # a frozen landmark takes no plane-to-BIM factor: its later observations do not reach it
+        todo = [j for j in sorted(set(observed)) if self.landmarks[j].face is None and self.landmarks[j].frozen is None
                 and self.bim.eligible(self.landmarks[j].area, len(self.landmarks[j].observations),
                                       self.landmarks[j].bim_attempt)]
         if not todo:

@@ -7,8 +7,8 @@ sound wall may stray from plan. A building whose sound walls sit closer than tha
 holds to millimetres, or the drawing was traced from the built walls) wastes what its walls
 could say about the poses and about every other wall's deviation. The residuals of the kept
 factors tell: split into the offset at the face centre and the two tilt components, each
-factor's squared whitened residual over its redundancy (the share of its information the rest
-of the graph does not repeat) measures that group's variance factor. The estimate is robust
+component's squared whitened residual over its redundancy (the share of its information the
+rest of the graph does not repeat) measures its group's variance factor. The estimate is robust
 (a median: GNC keeps walls built off plan by less than its threshold) and an upper confidence
 bound, so that a handful of walls cannot talk the tolerance down; and it only ever tightens
 the configured one, since a wall beyond it is a deviation, for GNC to judge, not evidence of a
@@ -21,38 +21,44 @@ import numpy as np
 from scipy.stats import binom, chi2
 
 # The components of a factor's residual in deviation coordinates, `(offset, tilt_1, tilt_2)`
-# (`factors.plane.face_tolerance_coordinates`): group 0 is the offset, group 1 the tilt.
-_GROUPS = (np.array([0]), np.array([1, 2]))
+# (`factors.plane.face_tolerance_coordinates`): the offset, and the two tilt components.
+_GROUP_OF_COMPONENT = (0, 1, 1)
 
 
 def redundancy(A: np.ndarray, e: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One factor's `(squared residuals, redundancy)` per group (offset, tilt). `A` (3 x n)
-    and `e` (3) are the factor's Jacobian and residual whitened in deviation coordinates, `cov`
-    the joint marginal covariance of its keys in the graph that includes it. The redundancy
-    matrix is `I - A cov A^T`; its diagonal, the share of each component not determined by the
-    rest of the graph, sums over a group to that group's degrees of freedom."""
+    """One factor's squared residuals and redundancies, per component. `A` (3 x n) and `e` (3)
+    are the factor's Jacobian and residual whitened in deviation coordinates, `cov` the joint
+    marginal covariance of its keys in the graph that includes it. The redundancy matrix is
+    `I - A cov A^T`; its diagonal is the share of each component that the rest of the graph
+    does not determine, and the variance of that component's residual in units of the
+    tolerance's."""
     R = np.eye(3) - A @ cov @ A.T
-    e2, r = np.asarray(e, dtype=float) ** 2, np.diag(R)
-    return np.array([e2[g].sum() for g in _GROUPS]), np.array([r[g].sum() for g in _GROUPS])
+    return np.asarray(e, dtype=float) ** 2, np.diag(R).copy()
 
 
 def variance_factors(terms: list[tuple[np.ndarray, np.ndarray]], confidence: float,
                      min_redundancy: float = 0.05) -> np.ndarray:
     """Upper `confidence` bounds of the (offset, tilt) variance factors from the factors'
-    `redundancy` terms. Each factor's `e^2 / r` is the variance factor times a chi-square
-    variable of the group's dimension over that dimension; the median of these, divided by the
-    chi-square median, estimates it whatever a minority of walls built just inside GNC's
-    threshold add (a sum of squares would follow them), and the order statistic that bounds
-    the median from above at `confidence` (binomial) makes it an upper bound. Factors the rest
-    of the graph barely checks (`r` below `min_redundancy` per component) say nothing; a group
-    with fewer than three that do keeps its factor of 1."""
+    `redundancy` terms. Each component's `e^2 / r` is the variance factor times a chi-square
+    variable of one degree of freedom, whatever its correlation with the others; the median of
+    a group's, over the chi-square median, estimates the group's factor whatever a minority of
+    walls built just inside GNC's threshold add (a sum of squares would follow them), and the
+    order statistic that bounds the median from above at `confidence` (binomial) makes it an
+    upper bound. Components the rest of the graph barely checks (`r` below `min_redundancy`)
+    say nothing; a group with too few samples for the bound (the largest of n samples bounds
+    the median at 1 - 0.5^n) keeps its factor of 1."""
+    samples: list[list[float]] = [[], []]
+    for squares, r in terms:
+        for c, g in enumerate(_GROUP_OF_COMPONENT):
+            if r[c] > min_redundancy:
+                samples[g].append(squares[c] / r[c])
     out = np.ones(2)
-    for g, dim in enumerate(len(group) for group in _GROUPS):
-        q = np.sort([s[g] / r[g] for s, r in terms if r[g] > min_redundancy * dim])
-        if len(q) < 3:
+    for g, q in enumerate(samples):
+        if 1.0 - 0.5 ** len(q) < confidence:
             continue
+        q = np.sort(q)
         k = min(int(binom.ppf(confidence, len(q), 0.5)), len(q) - 1)
-        out[g] = q[k] * dim / chi2.ppf(0.5, dim)
+        out[g] = q[k] / chi2.ppf(0.5, 1)
     return out
 
 

@@ -51,7 +51,8 @@ class Results:
     landmarks: list[Landmark]
     timings: dict = field(default_factory=dict)
     rounds: int = 0
-    # the plane-to-BIM tolerance the final graph used (normal rad, offset m), if estimated
+    # the plane-to-BIM tolerance (normal rad, offset m) the final graph's factors were given,
+    # if estimated (under the robust kernel, whose width is in units of it)
     bim_tolerance: tuple[float, float] | None = None
     # Every landmark with its joint covariance with E and its anchor, for the deviation step
     # (`bimgraph.deviations.estimate.ObservedPlane`).

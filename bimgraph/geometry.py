@@ -11,9 +11,10 @@ from scipy.spatial.transform import Rotation
 
 
 def make_pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    T = np.eye(4)
+    T = np.zeros((4, 4))  # (np.eye costs more than the rest: poses are made per keyframe and landmark)
     T[:3, :3] = R
     T[:3, 3] = t
+    T[3, 3] = 1.0
     return T
 
 

@@ -40,18 +40,20 @@ def mahalanobis_to_landmarks(obs: Observation, T_S_C: np.ndarray, landmarks: Lan
     of the plane factor that would join them (`factors.local_plane_error` with the camera as
     pose), with the landmark's marginal propagated through its Jacobian plus the observation's
     covariance. Vectorised over landmarks."""
-    T_A_C = landmarks.T_A_S[js] @ T_S_C
-    R, t = T_A_C[:, :3, :3], T_A_C[:, :3, 3]
-    n_A, d_A, B_A = landmarks.planes_A[js, :3], landmarks.planes_A[js, 3], landmarks.bases_A[js]
-    n_pred = np.einsum("jki,jk->ji", R, n_A)
-    d_pred = d_A + np.einsum("jk,jk->j", n_A, t)
-    B_z = gtsam.Unit3(obs.plane_C[:3]).basis()
-    e = np.column_stack([n_pred @ B_z, obs.plane_C[3] - d_pred])
-    # H = d e / d plane_A: [[B_z^T R^T B_A, 0], [-t^T B_A, -1]]
-    H = np.zeros((len(js), 3, 3))
-    H[:, :2, :2] = np.einsum("ki,jlk,jlm->jim", B_z, R, B_A)
-    H[:, 2, :2] = -np.einsum("jk,jkm->jm", t, B_A)
-    H[:, 2, 2] = -1.0
+    # A plane is a covector: seen from C, landmark j's plane (n, d) in A is T_A_C^T @ (n, d).
+    # With P taking it to the residual (n in the measurement's Unit3 basis; minus d), one
+    # product per landmark gives both the residual and, through the plane's own basis, its
+    # Jacobian (fewer numpy calls than spelling out n and d: they cost more than the maths).
+    A_to_C = (landmarks.T_A_S[js] @ T_S_C).transpose(0, 2, 1)
+    P = np.zeros((3, 4))
+    P[:2, :3] = gtsam.Unit3(obs.plane_C[:3]).basis().T
+    P[2, 3] = -1.0
+    PM = P @ A_to_C
+    e = (PM @ landmarks.planes_A[js, :, None])[:, :, 0]
+    e[:, 2] += obs.plane_C[3]
+    # H = d e / d plane_A (the normal moving along its basis B_A, then d):
+    # [[B_z^T R^T B_A, 0], [-t^T B_A, -1]]
+    H = np.concatenate([PM[:, :, :3] @ landmarks.bases_A[js], PM[:, :, 3:]], axis=2)
     S = H @ landmarks.covs_A[js] @ H.transpose(0, 2, 1) + obs.cov
     return np.einsum("ji,ji->j", e, np.linalg.solve(S, e[:, :, None])[:, :, 0])
 

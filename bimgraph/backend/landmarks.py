@@ -9,9 +9,9 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 import shapely
-from shapely.geometry import MultiPoint, Polygon
+from shapely.geometry import Polygon
 
-from bimgraph.geometry import inverse, plane_from_frame
+from bimgraph.geometry import inverse, plane_from_frame, plane_to_frame
 
 
 def plane_basis(n: np.ndarray) -> np.ndarray:
@@ -30,7 +30,7 @@ def from_plane_2d(uv: np.ndarray, plane: np.ndarray) -> np.ndarray:
 
 def hull_2d(uv: np.ndarray):
     """Convex hull of 2-D points as a shapely geometry (a polygon, or less when degenerate)."""
-    return MultiPoint(uv).convex_hull
+    return shapely.multipoints(uv).convex_hull  # (MultiPoint(uv) makes a Point per row first)
 
 
 def transform_points(T_A_B: np.ndarray, points_B: np.ndarray) -> np.ndarray:
@@ -156,8 +156,8 @@ class LandmarkTable:
             lm.cov_A = cov_A
             self.covs_A[j] = cov_A
         self.planes_A[j] = plane_A
-        self.planes_S[j] = lm.plane_S
         self.T_A_S[j] = inverse(T_S_A)
+        self.planes_S[j] = plane_to_frame(plane_A, self.T_A_S[j])  # lm.plane_S, without a second inverse
         self.bases_A[j] = plane_basis(plane_A[:3])
         self.update_sphere(j)
 

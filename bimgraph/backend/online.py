@@ -114,7 +114,9 @@ class Backend:
         """The face behind landmark j's latest observation (a member of its matched group)."""
         lm = self.landmarks[j]
         centre_A = lm.centres_A[-1]
-        centre_B = None if centre_A is None else transform_points(T_B_S @ lm.T_S_A, centre_A[None])[0]
+        if lm.face is None or centre_A is None:
+            return lm.face
+        centre_B = transform_points(T_B_S @ lm.T_S_A, centre_A[None])[0]
         return self.faces.observation_faces(lm.face, [centre_B])[0]
 
     def resolve_faces(self, T_B_S: np.ndarray) -> None:
@@ -176,7 +178,7 @@ class Backend:
         lm = self.landmarks[j]
         lm.add_observation(k, obs.index, transform_points(inverse(lm.T_S_A) @ T_S_C, obs.points_C), obs.area,
                            self.cfg.slam_association.extent_max_points)
-        self.landmarks.update_sphere(j)
+        # (its bounding sphere is recomputed by `_refresh`, which sets every observed landmark's estimate)
         if lm.frozen is None and len(lm.observations) >= self.cfg.isam2.freeze_after and not self._matchable(lm):
             lm.frozen = (lm.T_S_A, lm.plane_A, lm.cov_A)
         return j

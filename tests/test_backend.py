@@ -299,3 +299,14 @@ def test_offline_keeps_a_board_apart_from_the_wall_it_hides(cfg, seed):
     faces = results.associations()
     assert not any(faces.get(obs) == "r00E" for obs in hidden)
     assert sum(face == "r00E" for face in faces.values()) >= 10
+
+
+def test_a_landmark_takes_one_plane_to_bim_factor():
+    """Queued or in iSAM2 already, a second plane-to-BIM factor for one landmark is refused."""
+    from bimgraph.backend.graph import IncrementalGraph
+
+    graph = IncrementalGraph(BackendConfig(), np.eye(4), np.eye(6) * 0.01)
+    plane, centre = np.array([1.0, 0.0, 0.0, -2.0]), np.array([2.0, 0.0, 1.0])
+    graph.add_bim(0, 0, plane, centre)
+    with pytest.raises(ValueError, match="already"):
+        graph.add_bim(0, 0, plane, centre)

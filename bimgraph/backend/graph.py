@@ -133,7 +133,7 @@ class IncrementalGraph:
         self.build = FactorBuilder(cfg)
         self._factors = gtsam.NonlinearFactorGraph()
         self._values = gtsam.Values()
-        self._bim_queue: list[int] = []  # landmark of each queued plane-to-BIM factor, in order
+        self._bim_queue: list[tuple[int, int]] = []  # (landmark, position in the queued factors) of each plane-to-BIM factor
         self._remove: list[int] = []
         self.bim_index: dict[int, int] = {}  # landmark -> its plane-to-BIM factor in iSAM2
         self._copies = 0  # observations of frozen landmarks so far
@@ -171,7 +171,7 @@ class IncrementalGraph:
         self.add(self.build.observation_of(X(k), anchor, plane, plane_C, cov))
 
     def add_bim(self, j: int, anchor: int, plane_B: np.ndarray, centre_B: np.ndarray) -> None:
-        if j in self.bim_index or j in self._bim_queue:
+        if j in self.bim_index or any(q == j for q, _ in self._bim_queue):
             raise ValueError(f"landmark {j} already has a plane-to-BIM factor")
         self._bim_queue.append((j, self._factors.size()))
         self._factors.add(self.build.bim(anchor, j, plane_B, centre_B))

@@ -77,7 +77,6 @@ class Backend:
         self._landmark_of_face: dict[str, int] = {}
         self._previous: tuple[int, np.ndarray, np.ndarray] | None = None  # index, front-end pose, estimate
         self._count = 0
-        self._copies: dict[int, tuple[int, int]] = {}  # frozen landmark -> (its current copy, observations of it)
 
     # -- the step ---------------------------------------------------------------------------
     def process(self, kf: Keyframe) -> KeyframeResult:
@@ -173,7 +172,7 @@ class Backend:
                 self._landmark_of_face[face] = j
                 self._set_face(j, face, 0.0)
         elif self.landmarks[j].frozen is not None:
-            self.graph.add_copy_observation(k, self._copy_of(j), obs.plane_C, obs.cov)
+            self.graph.add_frozen_observation(k, *self.landmarks[j].frozen, obs.plane_C, obs.cov)
         else:
             self.graph.add(self.build.observation(k, self.landmarks[j].anchor, j, obs.plane_C, obs.cov))
         lm = self.landmarks[j]
@@ -183,17 +182,6 @@ class Backend:
         if lm.frozen is None and len(lm.observations) >= self.cfg.isam2.freeze_after and not self._matchable(lm):
             lm.frozen = (lm.T_S_A, lm.plane_A, lm.cov_A)
         return j
-
-    def _copy_of(self, j: int) -> int:
-        """The copy of frozen landmark j that this observation ties to: a new one every
-        `isam2.freeze_after` observations, so that a copy is shared by nearby keyframes only
-        (iSAM2's updates stay local) and the plane's uncertainty is counted once per run of
-        them, not once per observation."""
-        copy, uses = self._copies.get(j, (-1, self.cfg.isam2.freeze_after))
-        if uses >= self.cfg.isam2.freeze_after:
-            copy, uses = self.graph.frozen_copy(*self.landmarks[j].frozen), 0
-        self._copies[j] = (copy, uses + 1)
-        return copy
 
     def _matchable(self, lm: Landmark) -> bool:
         """Whether some face of the map is within the association's normal angle of the

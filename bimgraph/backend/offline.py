@@ -150,14 +150,15 @@ class OfflineEstimator:
         without_bim = self._graph(keyframes, observations, lambda lm: None)
 
         def judged(values):
-            """The verdicts at `values`, the estimate under them, and its TLS cost."""
+            """The TLS cost of the estimate under the verdicts at `values`, the verdicts, that
+            estimate, and the graph it solves."""
             whole = self._squared_residuals(matches, values) <= c2
             direction = self._squared_residuals(matches, values, free_offset=True) <= c2_direction
             verdicts = {m: KEPT if w else DIRECTION if d else OUT for m, w, d in zip(matches, whole, direction)}
             graph = self._graph(keyframes, observations, lambda lm: self._bim_factor(lm, 1.0, verdicts[lm.id, lm.face]))
             values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
             truncated = np.minimum(self._squared_residuals(matches, values), c2)
-            return without_bim.error(values) + 0.5 * float(truncated.sum()), verdicts, values
+            return without_bim.error(values) + 0.5 * float(truncated.sum()), verdicts, values, graph
 
         candidates = [judged(values)]
         r2 = self._squared_residuals(matches, values)
@@ -169,21 +170,20 @@ class OfflineEstimator:
                 values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
                 r2 = self._squared_residuals(matches, values)
             candidates.append(judged(values))
-        _, self.verdicts, values = min(candidates, key=lambda candidate: candidate[0])
+        _, self.verdicts, values, graph = min(candidates, key=lambda candidate: candidate[0])
         for _ in range(cfg.tolerance_rounds if cfg.estimate_tolerance else 0):
-            estimated = self._estimated_tolerance(keyframes, observations, values)
+            estimated = self._estimated_tolerance(graph, values)
             if np.allclose(estimated, self.tolerance, rtol=0.1):
                 break
             self.tolerance = estimated
-            _, self.verdicts, values = judged(values)
+            _, self.verdicts, values, graph = judged(values)
         return values
 
-    def _estimated_tolerance(self, keyframes: list[Keyframe], observations, values: gtsam.Values) -> tuple[float, float]:
-        """The tolerance the kept plane-to-BIM factors show at `values` (solved under the
-        current verdicts, Gaussian): `bimgraph.backend.tolerance`."""
+    def _estimated_tolerance(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[float, float]:
+        """The tolerance the kept plane-to-BIM factors show at `values`, solved on `graph` (the
+        graph under the current verdicts, Gaussian): `bimgraph.backend.tolerance`."""
         from bimgraph.deviations.graph import joint_covariance
 
-        graph = self._graph(keyframes, observations, lambda lm: self._bim_factor(lm, 1.0, self.verdicts[lm.id, lm.face]))
         marginals = gtsam.Marginals(graph, values)
         T_S_B = values.atPose3(E)
         whiten = 1.0 / np.array([self.tolerance[1], self.tolerance[0], self.tolerance[0]])

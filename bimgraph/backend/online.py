@@ -186,7 +186,7 @@ class Backend:
     def _matchable(self, lm: Landmark) -> bool:
         """Whether some face of the map is within the association's normal angle of the
         landmark (with the initial alignment's rotation, which is good to a few degrees)."""
-        n_B = self.prior.T_B_S[:3, :3] @ lm.plane_S[:3]
+        n_B = self.prior.T_B_S[:3, :3] @ self.landmarks.planes_S[lm.id, :3]
         return bool((self.faces.planes[:, :3] @ n_B >= np.cos(np.radians(self.cfg.bim_association.max_normal_angle_deg))).any())
 
     def _keys_of(self, js) -> list[int]:

@@ -36,7 +36,7 @@ import numpy as np
 from bimgraph.bim.planemap import BimFace
 from bimgraph.config import DeviationConfig
 from bimgraph.geometry import plane_from_frame
-from factors.plane import local_plane_error
+from factors.plane import face_tolerance_coordinates, local_plane_error
 
 Status = Literal["within_tolerance", "deviating", "not_enough_evidence", "possibly_not_built", "unplanned"]
 
@@ -154,16 +154,16 @@ def _without_own_factor(cov: np.ndarray, bim_factor) -> tuple[np.ndarray, np.nda
 def deviation_terms(e: np.ndarray, face: BimFace) -> tuple[np.ndarray, np.ndarray]:
     """`y = (offset, tilt_1, tilt_2)` (m, rad, rad) from the face's plane-to-BIM residual `e`,
     and its 3 x 3 Jacobian `dy/de` (see the module docstring)."""
-    B_F = gtsam.Unit3(np.asarray(face.normal, dtype=float)).basis()
-    c_F = B_F.T @ np.asarray(face.centre)
+    # to first order, the map the plane-to-BIM tolerance is written in; then the offset's
+    # second-order term in the tilt
+    M = face_tolerance_coordinates(gtsam.Unit3(np.asarray(face.normal, dtype=float)).basis(), face.centre)
     e12 = e[:2]
     cos_tilt = np.sqrt(max(1.0 - float(e12 @ e12), 0.0))
     d_F = face.offset
-    y = np.array([e[2] - e12 @ c_F - d_F * (1.0 - cos_tilt), e12[0], e12[1]])
-    H = np.zeros((3, 3))
-    H[0, :2] = -c_F - d_F * e12 / max(cos_tilt, 1e-9)
-    H[0, 2] = 1.0
-    H[1:, :2] = np.eye(2)
+    y = M @ e
+    y[0] -= d_F * (1.0 - cos_tilt)
+    H = M.copy()
+    H[0, :2] -= d_F * e12 / max(cos_tilt, 1e-9)
     return y, H
 
 

@@ -24,7 +24,7 @@ import gtsam
 import numpy as np
 from scipy.stats import chi2
 
-from bimgraph.backend import gnc, tolerance
+from bimgraph.backend import drift, gnc, tolerance
 from bimgraph.backend.alignment import Alignment
 from bimgraph.backend.associate_bim import PlaneInB, plane_in_B
 from bimgraph.backend.graph import E, L, X, cov_T_B_S, pose3
@@ -56,6 +56,8 @@ class OfflineEstimator:
         self.oracle = oracle
         # the plane-to-BIM tolerance (normal rad, offset m): configured, tightened after GNC
         self.tolerance = self.online.build.bim_tolerance()
+        self.drift = drift.DriftRates()  # the front-end's, taken out of its odometry
+        self.odometry_variance = np.ones(2)  # factors on its noise (rotation, translation)
 
     def run(self, keyframes: list[Keyframe]) -> Results:
         start = time.perf_counter()
@@ -74,6 +76,8 @@ class OfflineEstimator:
             t0 = time.perf_counter()
             graph = self._graph(keyframes, observations)
             values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+            if self.cfg.offline.estimate_drift:
+                graph, values = self._settle_drift(keyframes, observations, values, params, graph)
             marginals = gtsam.Marginals(graph, values)
             t1 = time.perf_counter()
             t_opt += t1 - t0
@@ -108,7 +112,7 @@ class OfflineEstimator:
         graph.add(build.extrinsic_prior(self.online.prior.T_B_S, self.online.prior.cov))
         graph.add(build.first_pose(keyframes[0].index, keyframes[0].pose))
         for previous, kf in zip(keyframes, keyframes[1:]):
-            graph.add(build.odometry(previous.index, kf.index, inverse(previous.pose) @ kf.pose, kf.cov))
+            graph.add(self._odometry(build, previous, kf))
         if self.online.gravity_aligned:
             for kf in keyframes[1:]:
                 graph.add(build.gravity(kf.index, kf.pose))
@@ -121,6 +125,58 @@ class OfflineEstimator:
             if factor is not None:
                 graph.add(factor)
         return graph
+
+    def _odometry(self, build, previous: Keyframe, kf: Keyframe) -> gtsam.NonlinearFactor:
+        """The front-end's step without its drift, under its noise scaled as estimated."""
+        step = self.drift.corrected(previous.pose, inverse(previous.pose) @ kf.pose)
+        scale = np.sqrt(np.repeat(self.odometry_variance, 3))
+        cov = build.default_odometry_cov if kf.cov is None else np.asarray(kf.cov)
+        return build.odometry(previous.index, kf.index, step, cov * np.outer(scale, scale))
+
+    def _settle_drift(self, keyframes: list[Keyframe], observations, values: gtsam.Values, params,
+                      graph: gtsam.NonlinearFactorGraph) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+        """Fit the front-end's drift rates to the smoothed poses and its noise to their steps,
+        take the drift out of the odometry and re-solve, until both settle; the graph and
+        estimate it ends with."""
+        cfg = self.cfg.offline
+        frontend = [kf.pose for kf in keyframes]
+        settle = drift.Settle()
+        for _ in range(cfg.drift_iterations):
+            fitted = drift.estimate(frontend, [values.atPose3(X(kf.index)).matrix() for kf in keyframes],
+                                    self._odometry_sigmas(keyframes), cfg.drift_probability)
+            rates = settle.next(self.drift, fitted)
+            # with no drift to take out, small step residuals cannot tell a precise front-end
+            # from walls that gave way to a biased one: the noise stays as given
+            variance = self._estimated_odometry_variance(keyframes, graph, values) \
+                if cfg.estimate_odometry_noise and rates.differs(drift.DriftRates(), 0.0) else self.odometry_variance
+            if not rates.differs(self.drift, cfg.drift_rtol) and np.allclose(variance, self.odometry_variance, rtol=2 * cfg.drift_rtol):
+                break
+            self.drift, self.odometry_variance = rates, variance
+            graph = self._graph(keyframes, observations)
+            values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+        return graph, values
+
+    def _odometry_sigmas(self, keyframes: list[Keyframe]) -> tuple[float, float]:
+        """The odometry's noise per step and axis, rotation (rad) and translation (m), on average."""
+        default = np.diag(self.online.build.default_odometry_cov)
+        diag = np.mean([default if kf.cov is None else np.diag(np.asarray(kf.cov)) for kf in keyframes[1:]], axis=0)
+        diag = diag * np.repeat(self.odometry_variance, 3)
+        return float(np.sqrt(diag[:3].mean())), float(np.sqrt(diag[3:].mean()))
+
+    def _estimated_odometry_variance(self, keyframes: list[Keyframe], graph: gtsam.NonlinearFactorGraph,
+                                     values: gtsam.Values) -> np.ndarray:
+        """The odometry's variance factors (rotation, translation) the smoothed steps show,
+        between the floor and 1: `bimgraph.backend.tolerance` over the odometry factors."""
+        from bimgraph.deviations.graph import joint_covariance
+
+        marginals = gtsam.Marginals(graph, values)
+        build = self.online.build
+        terms = []
+        for previous, kf in zip(keyframes, keyframes[1:]):
+            A, b = self._odometry(build, previous, kf).linearize(values).jacobian()
+            terms.append(tolerance.redundancy(A, -b, joint_covariance(marginals, [X(previous.index), X(kf.index)])))
+        factors = tolerance.variance_factors(terms, self.cfg.offline.tolerance_confidence, groups=(0, 0, 0, 1, 1, 1))
+        return np.clip(self.odometry_variance * factors, self.cfg.offline.odometry_noise_floor ** 2, 1.0)
 
     def _gnc(self, keyframes: list[Keyframe], observations, values: gtsam.Values) -> gtsam.Values:
         """Judge which plane-to-BIM factors the alignment keeps whole (`KEPT`); of the others,
@@ -309,7 +365,13 @@ class OfflineEstimator:
                        T_S_C=T_S_C, T_B_C=[T_B_S @ p for p in T_S_C], T_B_S=T_B_S, cov_T_B_S=cov,
                        unobservable=self.online.unobservable_with(normals),
                        landmarks=self._active(), timings=timings, rounds=rounds, observed_planes=planes,
-                       bim_tolerance=self.tolerance)
+                       bim_tolerance=self.tolerance, frontend_drift=self._drift_summary())
+
+    def _drift_summary(self) -> dict | None:
+        if not self.cfg.offline.estimate_drift:
+            return None
+        scale = np.sqrt(self.odometry_variance)
+        return {**self.drift.summary(), "odometry_sigma_scale": {"rotation": float(scale[0]), "translation": float(scale[1])}}
 
     def _refresh(self, values: gtsam.Values) -> None:
         for lm in self._active():

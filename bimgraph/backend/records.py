@@ -54,6 +54,9 @@ class Results:
     # the plane-to-BIM tolerance (normal rad, offset m) the final graph's factors were given,
     # if estimated (under the robust kernel, whose width is in units of it)
     bim_tolerance: tuple[float, float] | None = None
+    # the front-end's drift rates and odometry noise scale as the offline estimate measured
+    # them (`bimgraph.backend.drift`), if it did
+    frontend_drift: dict | None = None
     # Every landmark with its joint covariance with E and its anchor, for the deviation step
     # (`bimgraph.deviations.estimate.ObservedPlane`).
     observed_planes: list = field(default_factory=list)

@@ -20,9 +20,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import binom, chi2
 
-# The components of a factor's residual in deviation coordinates, `(offset, tilt_1, tilt_2)`
-# (`factors.plane.face_tolerance_coordinates`): the offset, and the two tilt components.
-_GROUP_OF_COMPONENT = (0, 1, 1)
+# The components of a plane-to-BIM factor's residual in deviation coordinates, `(offset,
+# tilt_1, tilt_2)` (`factors.plane.face_tolerance_coordinates`): the offset, and the two tilts.
+FACE_GROUPS = (0, 1, 1)
 
 
 def redundancy(A: np.ndarray, e: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -32,14 +32,15 @@ def redundancy(A: np.ndarray, e: np.ndarray, cov: np.ndarray) -> tuple[np.ndarra
     `I - A cov A^T`; its diagonal is the share of each component that the rest of the graph
     does not determine, and the variance of that component's residual in units of the
     tolerance's."""
-    R = np.eye(3) - A @ cov @ A.T
+    R = np.eye(len(e)) - A @ cov @ A.T
     return np.asarray(e, dtype=float) ** 2, np.diag(R).copy()
 
 
 def variance_factors(terms: list[tuple[np.ndarray, np.ndarray]], confidence: float,
-                     min_redundancy: float = 0.05) -> np.ndarray:
-    """Upper `confidence` bounds of the (offset, tilt) variance factors from the factors'
-    `redundancy` terms. Each component's `e^2 / r` is the variance factor times a chi-square
+                     groups: tuple[int, ...] = FACE_GROUPS, min_redundancy: float = 0.05) -> np.ndarray:
+    """Upper `confidence` bounds of the variance factors of the component `groups` (for each
+    residual component, the index of its group; by default a face's offset, tilt) from the
+    factors' `redundancy` terms. Each component's `e^2 / r` is the variance factor times a chi-square
     variable of one degree of freedom, whatever its correlation with the others; the median of
     a group's, over the chi-square median, estimates the group's factor whatever a minority of
     walls built just inside GNC's threshold add (a sum of squares would follow them), and the
@@ -47,12 +48,12 @@ def variance_factors(terms: list[tuple[np.ndarray, np.ndarray]], confidence: flo
     upper bound. Components the rest of the graph barely checks (`r` below `min_redundancy`)
     say nothing; a group with too few samples for the bound (the largest of n samples bounds
     the median at 1 - 0.5^n) keeps its factor of 1."""
-    samples: list[list[float]] = [[], []]
+    samples: list[list[float]] = [[] for _ in range(max(groups) + 1)]
     for squares, r in terms:
-        for c, g in enumerate(_GROUP_OF_COMPONENT):
+        for c, g in enumerate(groups):
             if r[c] > min_redundancy:
                 samples[g].append(squares[c] / r[c])
-    out = np.ones(2)
+    out = np.ones(len(samples))
     for g, q in enumerate(samples):
         if 1.0 - 0.5 ** len(q) < confidence:
             continue

@@ -1,0 +1,107 @@
+"""The front-end's systematic drift, measured from the data. Pure maths, no graph.
+
+A visual-inertial tracker's odometry is not only noisy, it is biased: a gyroscope bias turns
+its heading at a steady rate, a mis-estimated scale or accelerometer bias stretches its steps.
+Odometry factors with white noise cannot say that: between the walls that pin the poses, the
+estimate follows the biased steps, and a wall seen only from there is measured off by what the
+bias added (centimetres over a room). So the offline estimator measures the bias: each step's
+discrepancy between the front-end's relative pose and the smoothed one, rotated into the
+front-end's frame S, is fitted by least squares as a constant rate per metre travelled, for
+rotation and for translation, and the odometry factors take it out of their measurements. The
+smoothed poses follow the biased odometry in part, so the fit is repeated on the corrected
+graph until the rates settle: a fixed point, where each solve recovers a share of what remains
+(small where the odometry is precise), so the iteration extrapolates by that share (`Settle`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
+from bimgraph.geometry import inverse, make_pose
+
+
+@dataclass(frozen=True)
+class DriftRates:
+    """Rates per metre travelled, in the front-end's frame S: `rotation` (rad/m, a rotation
+    vector) and `translation` (m/m: 0.01 is a 1 % drift)."""
+
+    rotation: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def corrected(self, T_S_prev: np.ndarray, T_prev_k: np.ndarray) -> np.ndarray:
+        """The front-end's step `T_prev_k` from its pose `T_S_prev`, without the drift."""
+        R_S_prev = T_S_prev[:3, :3]
+        length = float(np.linalg.norm(T_prev_k[:3, 3]))
+        rotation = Rotation.from_rotvec(R_S_prev.T @ self.rotation * length).as_matrix()
+        return make_pose(T_prev_k[:3, :3] @ rotation, T_prev_k[:3, 3] + R_S_prev.T @ self.translation * length)
+
+    def differs(self, other: DriftRates, rtol: float) -> bool:
+        """Whether the rates differ by more than `rtol` of their size (either's)."""
+        size = max(np.linalg.norm(self.rotation), np.linalg.norm(other.rotation), 1e-12)
+        scale = max(np.linalg.norm(self.translation), np.linalg.norm(other.translation), 1e-12)
+        return bool(np.linalg.norm(self.rotation - other.rotation) > rtol * size
+                    or np.linalg.norm(self.translation - other.translation) > rtol * scale)
+
+    def summary(self) -> dict:
+        """The rates as a user reads them: degrees and percent per metre."""
+        return {"rotation_deg_per_m": np.round(np.degrees(self.rotation), 6).tolist(),
+                "translation_percent": np.round(100.0 * self.translation, 6).tolist()}
+
+
+def estimate(T_S_C_frontend: list[np.ndarray], T_S_C_smoothed: list[np.ndarray],
+             step_sigmas: tuple[float, float] | None = None, probability: float = 0.999) -> DriftRates:
+    """The constant drift rates that best explain, in least squares, each step's difference
+    between the front-end's relative pose and the smoothed one (both sequences of `T_S_C`).
+    With `step_sigmas` (the odometry's noise per step and axis: rotation rad, translation m),
+    a rate (rotation or translation) not significant at `probability` is zero: a front-end
+    whose error is a random walk shows a trend too, which is no bias to take out."""
+    lengths, rotations, translations = [], [], []
+    for k in range(1, len(T_S_C_frontend)):
+        z = inverse(T_S_C_frontend[k - 1]) @ T_S_C_frontend[k]
+        r = inverse(T_S_C_smoothed[k - 1]) @ T_S_C_smoothed[k]
+        R_S_prev = T_S_C_frontend[k - 1][:3, :3]
+        lengths.append(np.linalg.norm(z[:3, 3]))
+        rotations.append(R_S_prev @ Rotation.from_matrix(z[:3, :3].T @ r[:3, :3]).as_rotvec())
+        translations.append(R_S_prev @ (r[:3, 3] - z[:3, 3]))
+    lengths = np.asarray(lengths)
+    norm = float(lengths @ lengths)
+    if norm == 0.0:
+        return DriftRates()
+    rates = [lengths @ np.asarray(rotations) / norm, lengths @ np.asarray(translations) / norm]
+    if step_sigmas is not None:
+        # each component of a rate has the standard error sigma / sqrt(sum of squared lengths)
+        for block, sigma in enumerate(step_sigmas):
+            if float(rates[block] @ rates[block]) * norm / sigma**2 < chi2.ppf(probability, 3):
+                rates[block] = np.zeros(3)
+    return DriftRates(*rates)
+
+
+def as_vector(rates: DriftRates) -> np.ndarray:
+    return np.concatenate([rates.rotation, rates.translation])
+
+
+class Settle:
+    """The fixed point of `rates -> estimate(frontend, smoothed under rates)`. Each solve
+    recovers a share `s` of the rates still in the odometry, `fit(r) - r = s (r* - r)`, so two
+    steps measure the share (separately for rotation and translation) and the next guess is
+    `r + (fit(r) - r) / s` (Aitken's extrapolation, the share kept within [min_share, 1])."""
+
+    def __init__(self, min_share: float = 0.05):
+        self.min_share = min_share
+        self.step: np.ndarray | None = None
+
+    def next(self, current: DriftRates, fitted: DriftRates) -> DriftRates:
+        step = as_vector(fitted) - as_vector(current)
+        guess = as_vector(fitted).copy()
+        if self.step is not None:
+            for block in (slice(0, 3), slice(3, 6)):
+                before = float(self.step[block] @ self.step[block])
+                if before > 0.0:
+                    share = np.clip(1.0 - float(step[block] @ self.step[block]) / before, self.min_share, 1.0)
+                    guess[block] = as_vector(current)[block] + step[block] / share
+        self.step = step
+        return DriftRates(guess[:3], guess[3:])

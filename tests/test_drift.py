@@ -1,0 +1,80 @@
+"""The front-end's drift rates: measured from the smoothed poses, taken out of the odometry."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from bimgraph.backend import drift
+from bimgraph.backend.offline import OfflineEstimator
+from bimgraph.backend.synthetic import make_scene
+from bimgraph.config import BackendConfig
+from bimgraph.evaluation.metrics import ate
+from bimgraph.geometry import inverse, make_pose, pose_to_tum
+
+YAW_DEG_PER_M = 0.2
+DRIFT_PER_M = 0.01 * np.array([0.6, -0.8, 0.0])  # 1 % of the distance, in a fixed direction of S
+
+
+def biased(T_S_C: list[np.ndarray]) -> list[np.ndarray]:
+    """A front-end whose heading turns at a steady rate about S's z and whose position runs
+    off in a fixed direction, both per metre travelled (as a gyroscope or accelerometer bias
+    does; the simulator's front-end, without its noise)."""
+    R_drift, p = np.eye(3), T_S_C[0][:3, 3].copy()
+    out = [T_S_C[0]]
+    for previous, T in zip(T_S_C, T_S_C[1:]):
+        step = T[:3, 3] - previous[:3, 3]
+        length = np.linalg.norm(step)
+        R_drift = Rotation.from_rotvec([0.0, 0.0, np.radians(YAW_DEG_PER_M) * length]).as_matrix() @ R_drift
+        p = p + R_drift @ step + DRIFT_PER_M * length
+        out.append(make_pose(R_drift @ T[:3, :3], p))
+    return out
+
+
+def test_no_drift_is_no_correction():
+    T = make_pose(Rotation.from_euler("zx", [0.4, 0.1]).as_matrix(), np.array([1.0, 2.0, 0.5]))
+    step = make_pose(Rotation.from_euler("z", 0.2).as_matrix(), np.array([0.3, -0.1, 0.0]))
+    np.testing.assert_allclose(drift.DriftRates().corrected(T, step), step, atol=1e-15)
+    assert drift.estimate([T, T @ step], [T, T @ step]).differs(drift.DriftRates(), 1e-6) is False
+
+
+def test_rates_of_a_biased_front_end_are_recovered_and_removed():
+    scene = make_scene(120, rooms=(1, 1), floor=False)
+    T_S_C = [inverse(scene.T_B_S) @ T for T in scene.T_B_C]
+    frontend = biased(T_S_C)
+    rates = drift.estimate(frontend, T_S_C)
+    # what to add to the front-end's steps: the bias, negated (to first order in the step)
+    np.testing.assert_allclose(np.degrees(rates.rotation), [0.0, 0.0, -YAW_DEG_PER_M], atol=0.01 * YAW_DEG_PER_M)
+    np.testing.assert_allclose(rates.translation, -DRIFT_PER_M, atol=0.02 * np.linalg.norm(DRIFT_PER_M))
+    # the corrected steps rebuild the true path to well below the drift (5 cm here)
+    rebuilt = [frontend[0]]
+    for previous, T in zip(frontend, frontend[1:]):
+        rebuilt.append(rebuilt[-1] @ rates.corrected(previous, inverse(previous) @ T))
+    assert np.linalg.norm(frontend[-1][:3, 3] - T_S_C[-1][:3, 3]) > 0.05
+    assert max(np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in zip(rebuilt, T_S_C)) < 0.005
+
+
+def test_offline_measures_and_removes_the_drift():
+    scene = make_scene(200, rooms=(2, 2), seed=1, drift_rot_deg=0.01, drift_trans_m=0.001)
+    frontend = biased([kf.pose for kf in scene.keyframes])
+    # no covariance from the front-end, as from the simulator's: the configured odometry noise
+    keyframes = [kf.model_copy(update={"T_S_C": tuple(pose_to_tum(T)), "cov": None}) for kf, T in zip(scene.keyframes, frontend)]
+    errors = {}
+    for estimate_drift in (True, False):
+        cfg = BackendConfig()
+        cfg.offline.estimate_drift = estimate_drift
+        # 13 m of walk: the drift is at the edge of significance against the configured noise
+        cfg.offline.drift_probability = 0.5
+        est = OfflineEstimator(scene.plane_map, cfg, scene.initial)
+        res = est.run(keyframes)
+        errors[estimate_drift] = ate(res.T_B_C, scene.T_B_C)
+        if estimate_drift:
+            assert np.degrees(est.drift.rotation[2]) == pytest.approx(-YAW_DEG_PER_M, rel=0.2)
+            # the translation rate's direction, and most of its size (the short walk leaves some
+            # of it to the walls)
+            found, true = est.drift.translation, -DRIFT_PER_M
+            assert found @ true / (np.linalg.norm(found) * np.linalg.norm(true)) > 0.95
+            assert 0.5 < np.linalg.norm(found) / np.linalg.norm(true) < 1.2
+            assert res.frontend_drift["rotation_deg_per_m"][2] == pytest.approx(-YAW_DEG_PER_M, rel=0.2)
+        else:
+            assert res.frontend_drift is None
+    assert errors[True] < 0.8 * errors[False], errors

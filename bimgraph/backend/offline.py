@@ -135,9 +135,9 @@ class OfflineEstimator:
 
     def _settle_drift(self, keyframes: list[Keyframe], observations, values: gtsam.Values, params,
                       graph: gtsam.NonlinearFactorGraph) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
-        """Fit the front-end's drift rates to the smoothed poses and its noise to their steps,
-        take the drift out of the odometry and re-solve, until both settle; the graph and
-        estimate it ends with."""
+        """Fit the front-end's drift rates to the smoothed poses, take them out of the odometry
+        and re-solve until they settle; then, once a round, fit its noise to the smoothed steps.
+        The graph and estimate it ends with."""
         cfg = self.cfg.offline
         frontend = [kf.pose for kf in keyframes]
         settle = drift.Settle()
@@ -145,15 +145,19 @@ class OfflineEstimator:
             fitted = drift.estimate(frontend, [values.atPose3(X(kf.index)).matrix() for kf in keyframes],
                                     self._odometry_sigmas(keyframes), cfg.drift_probability)
             rates = settle.next(self.drift, fitted)
-            # with no drift to take out, small step residuals cannot tell a precise front-end
-            # from walls that gave way to a biased one: the noise stays as given
-            variance = self._estimated_odometry_variance(keyframes, graph, values) \
-                if cfg.estimate_odometry_noise and rates.differs(drift.DriftRates(), 0.0) else self.odometry_variance
-            if not rates.differs(self.drift, cfg.drift_rtol) and np.allclose(variance, self.odometry_variance, rtol=2 * cfg.drift_rtol):
+            if not rates.differs(self.drift, cfg.drift_rtol):
                 break
-            self.drift, self.odometry_variance = rates, variance
+            self.drift = rates
             graph = self._graph(keyframes, observations)
             values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+        # with no drift to take out, small step residuals cannot tell a precise front-end from
+        # walls that gave way to a biased one: the noise stays as given
+        if cfg.estimate_odometry_noise and self.drift.differs(drift.DriftRates(), 0.0):
+            variance = self._estimated_odometry_variance(keyframes, graph, values)
+            if not np.allclose(variance, self.odometry_variance, rtol=2 * cfg.drift_rtol):
+                self.odometry_variance = variance
+                graph = self._graph(keyframes, observations)
+                values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
         return graph, values
 
     def _odometry_sigmas(self, keyframes: list[Keyframe]) -> tuple[float, float]:

@@ -68,10 +68,10 @@ def test_offline_measures_and_removes_the_drift():
         res = est.run(keyframes)
         errors[estimate_drift] = ate(res.T_B_C, scene.T_B_C)
         if estimate_drift:
-            assert np.degrees(est.drift.rotation[2]) == pytest.approx(-YAW_DEG_PER_M, rel=0.2)
+            assert np.degrees(est.odometry.drift.rotation[2]) == pytest.approx(-YAW_DEG_PER_M, rel=0.2)
             # the translation rate's direction, and most of its size (the short walk leaves some
             # of it to the walls)
-            found, true = est.drift.translation, -DRIFT_PER_M
+            found, true = est.odometry.drift.translation, -DRIFT_PER_M
             assert found @ true / (np.linalg.norm(found) * np.linalg.norm(true)) > 0.95
             assert 0.5 < np.linalg.norm(found) / np.linalg.norm(true) < 1.2
             assert res.frontend_drift["rotation_deg_per_m"][2] == pytest.approx(-YAW_DEG_PER_M, rel=0.2)

@@ -3,7 +3,9 @@
 A causal pass of the online estimator first associates observations to landmarks and gives
 the starting estimate (a batch start from the drifting front-end alone leaves the far walls
 too uncertain to match). Then, in rounds: the graph is built from the associations,
-Levenberg-Marquardt smooths it, and with the smoothed estimates and marginals the matches that
+Levenberg-Marquardt smooths it, the front-end's systematic drift is measured from the smoothed
+poses and taken out of its odometry (and its noise tightened to what the smoothed steps show:
+`bimgraph.backend.odometry`), and with the smoothed estimates and marginals the matches that
 stopped fitting are revised, unmatched landmarks are associated, landmarks spanning coplanar
 sections of a wall are split per section, and landmarks matched to the same BIM face are
 merged into one (the loop closures a drifting causal pass misses); until a
@@ -29,6 +31,7 @@ from bimgraph.backend.alignment import Alignment
 from bimgraph.backend.associate_bim import PlaneInB, plane_in_B
 from bimgraph.backend.graph import E, L, X, cov_T_B_S, pose3
 from bimgraph.backend.landmarks import DIRECTION, KEPT, OUT, Landmark, transform_points
+from bimgraph.backend.odometry import OdometryModel
 from bimgraph.backend.associate_slam import same_plane_d2
 from bimgraph.backend.online import Backend, Oracle, misfit, observations_of, revision_reason, unmatch
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
@@ -56,8 +59,7 @@ class OfflineEstimator:
         self.oracle = oracle
         # the plane-to-BIM tolerance (normal rad, offset m): configured, tightened after GNC
         self.tolerance = self.online.build.bim_tolerance()
-        self.drift = drift.DriftRates()  # the front-end's, taken out of its odometry
-        self.odometry_variance = np.ones(2)  # factors on its noise (rotation, translation)
+        self.odometry = OdometryModel(self.online.build)  # the front-end's drift and noise, as measured
 
     def run(self, keyframes: list[Keyframe]) -> Results:
         start = time.perf_counter()
@@ -112,7 +114,7 @@ class OfflineEstimator:
         graph.add(build.extrinsic_prior(self.online.prior.T_B_S, self.online.prior.cov))
         graph.add(build.first_pose(keyframes[0].index, keyframes[0].pose))
         for previous, kf in zip(keyframes, keyframes[1:]):
-            graph.add(self._odometry(build, previous, kf))
+            graph.add(self.odometry.factor(previous, kf))
         if self.online.gravity_aligned:
             for kf in keyframes[1:]:
                 graph.add(build.gravity(kf.index, kf.pose))
@@ -126,13 +128,6 @@ class OfflineEstimator:
                 graph.add(factor)
         return graph
 
-    def _odometry(self, build, previous: Keyframe, kf: Keyframe) -> gtsam.NonlinearFactor:
-        """The front-end's step without its drift, under its noise scaled as estimated."""
-        step = self.drift.corrected(previous.pose, inverse(previous.pose) @ kf.pose)
-        scale = np.sqrt(np.repeat(self.odometry_variance, 3))
-        cov = build.default_odometry_cov if kf.cov is None else np.asarray(kf.cov)
-        return build.odometry(previous.index, kf.index, step, cov * np.outer(scale, scale))
-
     def _settle_drift(self, keyframes: list[Keyframe], observations, values: gtsam.Values, params,
                       graph: gtsam.NonlinearFactorGraph) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
         """Fit the front-end's drift rates to the smoothed poses, take them out of the odometry
@@ -143,44 +138,23 @@ class OfflineEstimator:
         settle = drift.Settle()
         for _ in range(cfg.drift_iterations):
             fitted = drift.estimate(frontend, [values.atPose3(X(kf.index)).matrix() for kf in keyframes],
-                                    self._odometry_sigmas(keyframes), cfg.drift_probability)
-            rates = settle.next(self.drift, fitted)
-            if not rates.differs(self.drift, cfg.drift_rtol):
+                                    self.odometry.step_sigmas(keyframes), cfg.drift_probability)
+            rates = settle.next(self.odometry.drift, fitted)
+            if not rates.differs(self.odometry.drift, cfg.drift_rtol):
                 break
-            self.drift = rates
+            self.odometry.drift = rates
             graph = self._graph(keyframes, observations)
             values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
         # with no drift to take out, small step residuals cannot tell a precise front-end from
         # walls that gave way to a biased one: the noise stays as given
-        if cfg.estimate_odometry_noise and self.drift.differs(drift.DriftRates(), 0.0):
-            variance = self._estimated_odometry_variance(keyframes, graph, values)
-            if not np.allclose(variance, self.odometry_variance, rtol=2 * cfg.drift_rtol):
-                self.odometry_variance = variance
+        if cfg.estimate_odometry_noise and self.odometry.drift.differs(drift.DriftRates(), 0.0):
+            variance = self.odometry.estimated_variance(keyframes, graph, values, cfg.tolerance_confidence,
+                                                        cfg.odometry_noise_floor)
+            if not np.allclose(variance, self.odometry.variance, rtol=2 * cfg.drift_rtol):
+                self.odometry.variance = variance
                 graph = self._graph(keyframes, observations)
                 values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
         return graph, values
-
-    def _odometry_sigmas(self, keyframes: list[Keyframe]) -> tuple[float, float]:
-        """The odometry's noise per step and axis, rotation (rad) and translation (m), on average."""
-        default = np.diag(self.online.build.default_odometry_cov)
-        diag = np.mean([default if kf.cov is None else np.diag(np.asarray(kf.cov)) for kf in keyframes[1:]], axis=0)
-        diag = diag * np.repeat(self.odometry_variance, 3)
-        return float(np.sqrt(diag[:3].mean())), float(np.sqrt(diag[3:].mean()))
-
-    def _estimated_odometry_variance(self, keyframes: list[Keyframe], graph: gtsam.NonlinearFactorGraph,
-                                     values: gtsam.Values) -> np.ndarray:
-        """The odometry's variance factors (rotation, translation) the smoothed steps show,
-        between the floor and 1: `bimgraph.backend.tolerance` over the odometry factors."""
-        from bimgraph.deviations.graph import joint_covariance
-
-        marginals = gtsam.Marginals(graph, values)
-        build = self.online.build
-        terms = []
-        for previous, kf in zip(keyframes, keyframes[1:]):
-            A, b = self._odometry(build, previous, kf).linearize(values).jacobian()
-            terms.append(tolerance.redundancy(A, -b, joint_covariance(marginals, [X(previous.index), X(kf.index)])))
-        factors = tolerance.variance_factors(terms, self.cfg.offline.tolerance_confidence, groups=(0, 0, 0, 1, 1, 1))
-        return np.clip(self.odometry_variance * factors, self.cfg.offline.odometry_noise_floor ** 2, 1.0)
 
     def _gnc(self, keyframes: list[Keyframe], observations, values: gtsam.Values) -> gtsam.Values:
         """Judge which plane-to-BIM factors the alignment keeps whole (`KEPT`); of the others,
@@ -369,13 +343,7 @@ class OfflineEstimator:
                        T_S_C=T_S_C, T_B_C=[T_B_S @ p for p in T_S_C], T_B_S=T_B_S, cov_T_B_S=cov,
                        unobservable=self.online.unobservable_with(normals),
                        landmarks=self._active(), timings=timings, rounds=rounds, observed_planes=planes,
-                       bim_tolerance=self.tolerance, frontend_drift=self._drift_summary())
-
-    def _drift_summary(self) -> dict | None:
-        if not self.cfg.offline.estimate_drift:
-            return None
-        scale = np.sqrt(self.odometry_variance)
-        return {**self.drift.summary(), "odometry_sigma_scale": {"rotation": float(scale[0]), "translation": float(scale[1])}}
+                       bim_tolerance=self.tolerance, frontend_drift=self.odometry.summary() if self.cfg.offline.estimate_drift else None)
 
     def _refresh(self, values: gtsam.Values) -> None:
         for lm in self._active():

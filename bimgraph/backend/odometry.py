@@ -1,0 +1,57 @@
+"""The offline graph's model of the front-end's odometry: its steps without the drift measured
+so far (`bimgraph.backend.drift`), under its noise scaled by the variance factors estimated
+from the smoothed steps (`bimgraph.backend.tolerance`). No I/O."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from bimgraph.backend.drift import DriftRates
+from bimgraph.backend.graph import FactorBuilder, X
+from bimgraph.backend.tolerance import redundancy, variance_factors
+from bimgraph.geometry import inverse
+from bimgraph.sequence.format import Keyframe
+
+# the components of a Pose3 residual: rotation (3), then translation (3)
+_POSE_GROUPS = (0, 0, 0, 1, 1, 1)
+
+
+class OdometryModel:
+    def __init__(self, build: FactorBuilder):
+        self.build = build
+        self.drift = DriftRates()
+        self.variance = np.ones(2)  # factors on the given noise: rotation, translation
+
+    def _cov(self, kf: Keyframe) -> np.ndarray:
+        cov = self.build.default_odometry_cov if kf.cov is None else np.asarray(kf.cov)
+        scale = np.sqrt(np.repeat(self.variance, 3))
+        return cov * np.outer(scale, scale)
+
+    def factor(self, previous: Keyframe, kf: Keyframe) -> gtsam.NonlinearFactor:
+        """The front-end's step from `previous` to `kf` without its drift, under its noise."""
+        step = self.drift.corrected(previous.pose, inverse(previous.pose) @ kf.pose)
+        return self.build.odometry(previous.index, kf.index, step, self._cov(kf))
+
+    def step_sigmas(self, keyframes: list[Keyframe]) -> tuple[float, float]:
+        """The noise per step and axis, rotation (rad) and translation (m), on average."""
+        diag = np.mean([np.diag(self._cov(kf)) for kf in keyframes[1:]], axis=0)
+        return float(np.sqrt(diag[:3].mean())), float(np.sqrt(diag[3:].mean()))
+
+    def estimated_variance(self, keyframes: list[Keyframe], graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                           confidence: float, floor: float) -> np.ndarray:
+        """The variance factors (rotation, translation) the smoothed steps of `graph` at
+        `values` show, between `floor`^2 and 1: variance component estimation over the
+        odometry factors, as for the walls' tolerance."""
+        from bimgraph.deviations.graph import joint_covariance
+
+        marginals = gtsam.Marginals(graph, values)
+        terms = []
+        for previous, kf in zip(keyframes, keyframes[1:]):
+            A, b = self.factor(previous, kf).linearize(values).jacobian()
+            terms.append(redundancy(A, -b, joint_covariance(marginals, [X(previous.index), X(kf.index)])))
+        return np.clip(self.variance * variance_factors(terms, confidence, _POSE_GROUPS), floor**2, 1.0)
+
+    def summary(self) -> dict:
+        scale = np.sqrt(self.variance)
+        return {**self.drift.summary(), "odometry_sigma_scale": {"rotation": float(scale[0]), "translation": float(scale[1])}}

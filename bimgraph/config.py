@@ -300,6 +300,7 @@ class Isam2Config(Section):
     refresh_every: int = Field(25, ge=1, description="refresh the cached estimates of every landmark every this many keyframes (observed ones are refreshed always)")
     covariance_early: int = Field(4, ge=1, description="re-read a landmark's marginal covariance at each of its first this many observations...")
     covariance_every: int = Field(8, ge=1, description="...then at every this many-th observation")
+    drift_every: int = Field(50, ge=0, description="every this many keyframes, fit the front-end's drift rates to the estimate so far (as offline: backend.offline.drift_probability, drift_rtol) and, if they changed, re-add every odometry factor without the drift (one large update each time; 0: never)")
     freeze_after: int = Field(30, ge=2, description="a landmark no face of the map could match (its normal beyond bim_association.max_normal_angle_deg from every face's: the floor, in a map of walls) is frozen once observed this many times: later observations tie their keyframe to a copy of it, so that a plane seen from everywhere does not make every iSAM2 update touch the whole tree")
 
 

@@ -6,6 +6,7 @@ from scipy.spatial.transform import Rotation
 
 from bimgraph.backend import drift
 from bimgraph.backend.offline import OfflineEstimator
+from bimgraph.backend.online import Backend
 from bimgraph.backend.synthetic import make_scene
 from bimgraph.config import BackendConfig
 from bimgraph.evaluation.metrics import ate
@@ -53,11 +54,17 @@ def test_rates_of_a_biased_front_end_are_recovered_and_removed():
     assert max(np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in zip(rebuilt, T_S_C)) < 0.005
 
 
-def test_offline_measures_and_removes_the_drift():
+def biased_scene():
+    """The synthetic rooms walked by a biased front-end that gives no covariance (as the
+    simulator's): the configured odometry noise."""
     scene = make_scene(200, rooms=(2, 2), seed=1, drift_rot_deg=0.01, drift_trans_m=0.001)
     frontend = biased([kf.pose for kf in scene.keyframes])
-    # no covariance from the front-end, as from the simulator's: the configured odometry noise
     keyframes = [kf.model_copy(update={"T_S_C": tuple(pose_to_tum(T)), "cov": None}) for kf, T in zip(scene.keyframes, frontend)]
+    return scene, keyframes
+
+
+def test_offline_measures_and_removes_the_drift():
+    scene, keyframes = biased_scene()
     errors = {}
     for estimate_drift in (True, False):
         cfg = BackendConfig()
@@ -96,3 +103,19 @@ def test_settle_extrapolates_to_the_fixed_point():
     for _ in range(3):
         rates = settle.next(rates, solve_and_fit(rates))
     np.testing.assert_allclose(drift.as_vector(rates), drift.as_vector(true), rtol=1e-9, atol=1e-12)
+
+
+def test_online_takes_the_drift_out_as_it_finds_it():
+    scene, keyframes = biased_scene()
+    cfg = BackendConfig()
+    cfg.offline.drift_probability = 0.5  # (as offline, above)
+    errors = {}
+    for every in (50, 0):
+        backend = Backend(scene.plane_map, cfg, scene.initial, drift_every=every)
+        results = [backend.process(kf) for kf in keyframes]
+        errors[every] = ate([r.T_B_C for r in results], scene.T_B_C)
+        # one odometry factor per step, whatever was replaced
+        assert sorted(backend.graph.odometry_index) == [kf.index for kf in keyframes[1:]]
+        if every:
+            assert np.degrees(backend.odometry.drift.rotation[2]) == pytest.approx(-YAW_DEG_PER_M, rel=0.3)
+    assert errors[50] < 0.8 * errors[0], errors

@@ -59,15 +59,20 @@ def estimate(T_S_C_frontend: list[np.ndarray], T_S_C_smoothed: list[np.ndarray],
     With `step_sigmas` (the odometry's noise per step and axis: rotation rad, translation m),
     a rate (rotation or translation) not significant at `probability` is zero: a front-end
     whose error is a random walk shows a trend too, which is no bias to take out."""
-    lengths, rotations, translations = [], [], []
-    for k in range(1, len(T_S_C_frontend)):
-        z = inverse(T_S_C_frontend[k - 1]) @ T_S_C_frontend[k]
-        r = inverse(T_S_C_smoothed[k - 1]) @ T_S_C_smoothed[k]
-        R_S_prev = T_S_C_frontend[k - 1][:3, :3]
-        lengths.append(np.linalg.norm(z[:3, 3]))
-        rotations.append(R_S_prev @ Rotation.from_matrix(z[:3, :3].T @ r[:3, :3]).as_rotvec())
-        translations.append(R_S_prev @ (r[:3, 3] - z[:3, 3]))
-    lengths = np.asarray(lengths)
+    F, T = np.asarray(T_S_C_frontend), np.asarray(T_S_C_smoothed)
+    if len(F) < 2:
+        return DriftRates()
+    R_prev, R_next = F[:-1, :3, :3], F[1:, :3, :3]
+    Rs_prev, Rs_next = T[:-1, :3, :3], T[1:, :3, :3]
+    # the steps in the previous keyframe's frame: front-end z, smoothed r
+    z_t = np.einsum("nji,nj->ni", R_prev, F[1:, :3, 3] - F[:-1, :3, 3])
+    r_t = np.einsum("nji,nj->ni", Rs_prev, T[1:, :3, 3] - T[:-1, :3, 3])
+    z_R = np.einsum("nji,njk->nik", R_prev, R_next)
+    r_R = np.einsum("nji,njk->nik", Rs_prev, Rs_next)
+    lengths = np.linalg.norm(z_t, axis=1)
+    # each step's difference, rotated into S by the front-end's previous pose
+    rotations = np.einsum("nij,nj->ni", R_prev, Rotation.from_matrix(np.einsum("nji,njk->nik", z_R, r_R)).as_rotvec())
+    translations = np.einsum("nij,nj->ni", R_prev, r_t - z_t)
     norm = float(lengths @ lengths)
     if norm == 0.0:
         return DriftRates()

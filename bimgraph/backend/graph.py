@@ -133,9 +133,11 @@ class IncrementalGraph:
         self.build = FactorBuilder(cfg)
         self._factors = gtsam.NonlinearFactorGraph()
         self._values = gtsam.Values()
-        self._bim_queue: list[tuple[int, int]] = []  # (landmark, position in the queued factors) of each plane-to-BIM factor
+        # (index table, its key, position in the queued factors) of each factor whose iSAM2 index is kept
+        self._tracked: list[tuple[dict, int, int]] = []
         self._remove: list[int] = []
         self.bim_index: dict[int, int] = {}  # landmark -> its plane-to-BIM factor in iSAM2
+        self.odometry_index: dict[int, int] = {}  # keyframe -> its odometry factor (from the one before) in iSAM2
         self._copies = 0  # observations of frozen landmarks so far
         self.update_seconds = 0.0  # total time inside iSAM2 updates
         self.add(self.build.extrinsic_prior(T_B_S, cov_T_B_S_))
@@ -170,11 +172,20 @@ class IncrementalGraph:
         self.add(plane_prior_factor(plane_A, gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov_A)), plane))
         self.add(self.build.observation_of(X(k), anchor, plane, plane_C, cov))
 
+    def _add_tracked(self, table: dict, key: int, factor: gtsam.NonlinearFactor) -> None:
+        self._tracked.append((table, key, self._factors.size()))
+        self._factors.add(factor)
+
     def add_bim(self, j: int, anchor: int, plane_B: np.ndarray, centre_B: np.ndarray) -> None:
-        if j in self.bim_index or any(q == j for q, _ in self._bim_queue):
+        if j in self.bim_index or any(t is self.bim_index and q == j for t, q, _ in self._tracked):
             raise ValueError(f"landmark {j} already has a plane-to-BIM factor")
-        self._bim_queue.append((j, self._factors.size()))
-        self._factors.add(self.build.bim(anchor, j, plane_B, centre_B))
+        self._add_tracked(self.bim_index, j, self.build.bim(anchor, j, plane_B, centre_B))
+
+    def add_odometry(self, k: int, factor: gtsam.NonlinearFactor) -> None:
+        """Keyframe k's odometry factor; one it had before is removed."""
+        if k in self.odometry_index:
+            self._remove.append(self.odometry_index.pop(k))
+        self._add_tracked(self.odometry_index, k, factor)
 
     def remove_bim(self, j: int) -> None:
         self._remove.append(self.bim_index.pop(j))
@@ -187,11 +198,11 @@ class IncrementalGraph:
         estimate = self.isam.calculateEstimate(sorted(set(keys))) if keys else None
         self.update_seconds += time.perf_counter() - start
         indices = result.getNewFactorsIndices()
-        for j, position in self._bim_queue:
-            self.bim_index[j] = indices[position]
+        for table, key, position in self._tracked:
+            table[key] = indices[position]
         self._factors = gtsam.NonlinearFactorGraph()
         self._values = gtsam.Values()
-        self._bim_queue, self._remove = [], []
+        self._tracked, self._remove = [], []
         return estimate
 
     def marginal(self, key: int) -> np.ndarray:

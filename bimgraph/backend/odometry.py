@@ -22,16 +22,27 @@ class OdometryModel:
         self.build = build
         self.drift = DriftRates()
         self.variance = np.ones(2)  # factors on the given noise: rotation, translation
+        self._poses: dict[int, np.ndarray] = {}  # keyframe -> its front-end pose (parsing it is slow)
+
+    def pose(self, kf: Keyframe) -> np.ndarray:
+        """The front-end's `T_S_C` of keyframe `kf` (one keyframe per index)."""
+        if kf.index not in self._poses:
+            self._poses[kf.index] = kf.pose
+        return self._poses[kf.index]
 
     def _cov(self, kf: Keyframe) -> np.ndarray:
         cov = self.build.default_odometry_cov if kf.cov is None else np.asarray(kf.cov)
         scale = np.sqrt(np.repeat(self.variance, 3))
         return cov * np.outer(scale, scale)
 
+    def step(self, previous: Keyframe, kf: Keyframe) -> np.ndarray:
+        """The front-end's step from `previous` to `kf` without its drift."""
+        T_S_prev = self.pose(previous)
+        return self.drift.corrected(T_S_prev, inverse(T_S_prev) @ self.pose(kf))
+
     def factor(self, previous: Keyframe, kf: Keyframe) -> gtsam.NonlinearFactor:
-        """The front-end's step from `previous` to `kf` without its drift, under its noise."""
-        step = self.drift.corrected(previous.pose, inverse(previous.pose) @ kf.pose)
-        return self.build.odometry(previous.index, kf.index, step, self._cov(kf))
+        """That step as a factor, under the front-end's noise."""
+        return self.build.odometry(previous.index, kf.index, self.step(previous, kf), self._cov(kf))
 
     def step_sigmas(self, keyframes: list[Keyframe]) -> tuple[float, float]:
         """The noise per step and axis, rotation (rad) and translation (m), on average."""

@@ -53,8 +53,9 @@ class OfflineEstimator:
         # GNC's verdict on each (landmark, face) pair it judged (KEPT, DIRECTION or OUT)
         self.verdicts: dict[tuple[int, str], str] = {}
         self.listener = listener or Listener()
-        # the causal pass reports nothing: the listener hears the smoothed results
-        self.online = Backend(plane_map, cfg, initial, None, oracle, covariance=False)
+        # the causal pass reports nothing (the listener hears the smoothed results) and leaves
+        # the drift to the rounds
+        self.online = Backend(plane_map, cfg, initial, None, oracle, covariance=False, drift_every=0)
         self.faces, self.bim, self.landmarks = self.online.faces, self.online.bim, self.online.landmarks
         self.oracle = oracle
         # the plane-to-BIM tolerance (normal rad, offset m): configured, tightened after GNC
@@ -134,7 +135,7 @@ class OfflineEstimator:
         and re-solve until they settle; then, once a round, fit its noise to the smoothed steps.
         The graph and estimate it ends with."""
         cfg = self.cfg.offline
-        frontend = [kf.pose for kf in keyframes]
+        frontend = [self.odometry.pose(kf) for kf in keyframes]
         settle = drift.Settle()
         for _ in range(cfg.drift_iterations):
             fitted = drift.estimate(frontend, [values.atPose3(X(kf.index)).matrix() for kf in keyframes],

@@ -12,8 +12,10 @@ import numpy as np
 from bimgraph.backend.alignment import Alignment, levelled, lock_directions, unlocked_covariance, unobservable_directions
 from bimgraph.backend.associate_bim import BimAssociator, FaceIndex, PlaneInB, plane_in_B
 from bimgraph.backend.associate_slam import Observation, SlamAssociator
+from bimgraph.backend import drift
 from bimgraph.backend.graph import E, L, X, IncrementalGraph, cov_T_B_S
 from bimgraph.backend.landmarks import Landmark, LandmarkTable, observation_points, transform_points
+from bimgraph.backend.odometry import OdometryModel
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig
@@ -55,9 +57,11 @@ class Backend:
     """
 
     def __init__(self, plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,
-                 listener: Listener | None = None, oracle: Oracle | None = None, covariance: bool = True):
+                 listener: Listener | None = None, oracle: Oracle | None = None, covariance: bool = True,
+                 drift_every: int | None = None):
         self.cfg = cfg
         self.covariance = covariance  # False: results carry NaN covariances (a pass nobody reads)
+        self.drift_every = cfg.isam2.drift_every if drift_every is None else drift_every
         self.faces = FaceIndex(plane_map, cfg.bim_association)
         self.bim = BimAssociator(self.faces, cfg.bim_association)
         self.slam = SlamAssociator(cfg.slam_association)
@@ -75,15 +79,17 @@ class Backend:
         self.listener = listener or Listener()
         self.oracle = oracle
         self._landmark_of_face: dict[str, int] = {}
-        self._previous: tuple[int, np.ndarray, np.ndarray] | None = None  # index, front-end pose, estimate
+        self._previous: tuple[Keyframe, np.ndarray] | None = None  # the keyframe before and its estimate
+        self.odometry = OdometryModel(self.build)  # the front-end's drift, taken out as found
+        self._keyframes: list[Keyframe] = []  # so far, for the drift's fit
         self._count = 0
 
     # -- the step ---------------------------------------------------------------------------
     def process(self, kf: Keyframe) -> KeyframeResult:
         start = time.perf_counter()
         isam2_before = self.graph.update_seconds
-        k, T_S_C_frontend = kf.index, kf.pose
-        T_S_C_guess = self._add_pose(k, T_S_C_frontend, kf.cov)
+        k = kf.index
+        T_S_C_guess = self._add_pose(kf)
         observations = observations_of(kf, self.build.default_plane_cov)
         matches = self._match_observations(k, observations, T_S_C_guess)
         observed = [self._add_observation(k, obs, j, T_S_C_guess) for obs, j in zip(observations, matches)]
@@ -97,11 +103,15 @@ class Backend:
                 self.graph.update()
             values = self.graph.update(self._keys_of(observed) + [X(k), E])
             self._refresh(values, observed, [])
+        if self.drift_every and self._count % self.drift_every == 0 and self._correct_drift():
+            everything = range(len(self.landmarks))
+            values = self.graph.update(self._keys_of(everything) + [X(k), E])
+            self._refresh(values, everything, [])
 
         T_S_C = values.atPose3(X(k)).matrix()
         T_S_B = values.atPose3(E)
         T_B_S = T_S_B.inverse().matrix()
-        self._previous = (k, T_S_C_frontend, T_S_C)
+        self._previous = (kf, T_S_C)
         cov = cov_T_B_S(T_S_B, self.graph.marginal(E)) + self.locked_cov if self.covariance else np.full((6, 6), np.nan)
         result = KeyframeResult(
             index=k, stamp=kf.stamp, T_S_C=T_S_C, T_B_C=T_B_S @ T_S_C, T_B_S=T_B_S, cov_T_B_S=cov,
@@ -134,19 +144,35 @@ class Backend:
         return unobservable_directions(normals_B, self.cfg.unobservable_min_angle_deg, self.gravity_aligned)
 
     # -- pieces -----------------------------------------------------------------------------
-    def _add_pose(self, k: int, T_S_C_frontend: np.ndarray, cov) -> np.ndarray:
+    def _add_pose(self, kf: Keyframe) -> np.ndarray:
+        self._keyframes.append(kf)
         if self._previous is None:
-            self.graph.add(self.build.first_pose(k, T_S_C_frontend))
-            guess = T_S_C_frontend
+            self.graph.add(self.build.first_pose(kf.index, kf.pose))
+            guess = kf.pose
         else:
-            k_prev, T_S_Cprev_frontend, T_S_Cprev = self._previous
-            T_prev_k = inverse(T_S_Cprev_frontend) @ T_S_C_frontend
-            self.graph.add(self.build.odometry(k_prev, k, T_prev_k, cov))
-            guess = T_S_Cprev @ T_prev_k
+            previous, T_S_Cprev = self._previous
+            self.graph.add_odometry(kf.index, self.odometry.factor(previous, kf))
+            guess = T_S_Cprev @ self.odometry.step(previous, kf)
             if self.gravity_aligned:  # (the first pose's prior holds its tilt already)
-                self.graph.add(self.build.gravity(k, T_S_C_frontend))
-        self.graph.insert_pose(k, guess)
+                self.graph.add(self.build.gravity(kf.index, kf.pose))
+        self.graph.insert_pose(kf.index, guess)
         return guess
+
+    def _correct_drift(self) -> bool:
+        """Fit the front-end's drift rates to the estimate so far; if they changed, queue every
+        odometry factor again without them (`bimgraph.backend.drift`; no extrapolation here,
+        since the graph grows between fits). Whether they changed."""
+        estimate = self.graph.isam.calculateEstimate()
+        cfg = self.cfg.offline
+        fitted = drift.estimate([self.odometry.pose(kf) for kf in self._keyframes],
+                                [estimate.atPose3(X(kf.index)).matrix() for kf in self._keyframes],
+                                self.odometry.step_sigmas(self._keyframes), cfg.drift_probability)
+        if not fitted.differs(self.odometry.drift, cfg.drift_rtol):
+            return False
+        self.odometry.drift = fitted
+        for previous, kf in zip(self._keyframes, self._keyframes[1:]):
+            self.graph.add_odometry(kf.index, self.odometry.factor(previous, kf))
+        return True
 
     def _match_observations(self, k: int, observations: list[Observation], T_S_C: np.ndarray) -> list[int | None]:
         matches = [j for j, _ in self.slam.associate(observations, T_S_C, self.landmarks)]

@@ -55,6 +55,9 @@ def test_run_writes_every_output(world, tmp_path, mode):
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["finished"] and summary["mode"] == mode and summary["keyframes"] == N
     assert summary["off_plan_landmarks"] == 0
+    # this world's front-end drifts as a random walk: no rate stands out
+    assert summary["frontend_drift"]["rotation_deg_per_m"] == [0.0, 0.0, 0.0]
+    assert summary["frontend_drift"]["translation_percent"] == [0.0, 0.0, 0.0]
 
 
 def test_crash_mid_run_leaves_valid_outputs(world, tmp_path):

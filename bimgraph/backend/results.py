@@ -148,7 +148,8 @@ class OnlineWriter:
         write_json(self.out / ASSOCIATIONS, associations_record(landmarks))
         write_json(self.out / LANDMARKS, landmarks_record(landmarks, self.last.T_B_S))
         write_json(self.out / SUMMARY, summary_record("online", timings or {}, self.latencies, len(self.latencies),
-                                                      landmarks, finished, inputs=self.inputs))
+                                                      landmarks, finished, inputs=self.inputs,
+                                                      frontend_drift=backend.odometry.summary() if backend.drift_every else None))
 
     def close(self) -> None:
         self.bim.close()

@@ -1,10 +1,11 @@
 """The front-end's systematic drift, measured from the data. Pure maths, no graph.
 
-A visual-inertial tracker's odometry is not only noisy, it is biased: a gyroscope bias turns
-its heading at a steady rate, a mis-estimated scale or accelerometer bias stretches its steps.
-Odometry factors with white noise cannot say that: between the walls that pin the poses, the
+A tracker's odometry is not only noisy, it can be biased: its heading turns steadily as it
+goes, its position runs off in one direction (the simulator's front-end does both, per metre
+travelled; a scale error, along each step, is not modelled here). Odometry factors with white
+noise cannot say that: between the walls that pin the poses, the
 estimate follows the biased steps, and a wall seen only from there is measured off by what the
-bias added (centimetres over a room). So the offline estimator measures the bias: each step's
+bias added (centimetres over a room). So the estimator measures the drift: each step's
 discrepancy between the front-end's relative pose and the smoothed one, rotated into the
 front-end's frame S, is fitted by least squares as a constant rate per metre travelled, for
 rotation and for translation, and the odometry factors take it out of their measurements. The
@@ -21,13 +22,14 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from bimgraph.geometry import inverse, make_pose
+from bimgraph.geometry import make_pose
 
 
 @dataclass(frozen=True)
 class DriftRates:
-    """Rates per metre travelled, in the front-end's frame S: `rotation` (rad/m, a rotation
-    vector) and `translation` (m/m: 0.01 is a 1 % drift)."""
+    """Rates per metre travelled, in the front-end's frame S, of the correction its steps need
+    (the drift, negated): `rotation` (rad/m, a rotation vector) and `translation` (m/m: 0.01
+    is 1 % of the distance)."""
 
     rotation: np.ndarray = field(default_factory=lambda: np.zeros(3))
     translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -36,8 +38,9 @@ class DriftRates:
         """The front-end's step `T_prev_k` from its pose `T_S_prev`, without the drift."""
         R_S_prev = T_S_prev[:3, :3]
         length = float(np.linalg.norm(T_prev_k[:3, 3]))
+        # a rotation about S's axes, seen from the previous keyframe, before the step's own
         rotation = Rotation.from_rotvec(R_S_prev.T @ self.rotation * length).as_matrix()
-        return make_pose(T_prev_k[:3, :3] @ rotation, T_prev_k[:3, 3] + R_S_prev.T @ self.translation * length)
+        return make_pose(rotation @ T_prev_k[:3, :3], T_prev_k[:3, 3] + R_S_prev.T @ self.translation * length)
 
     def differs(self, other: DriftRates, rtol: float) -> bool:
         """Whether the rates differ by more than `rtol` of their size (either's)."""
@@ -45,6 +48,9 @@ class DriftRates:
         scale = max(np.linalg.norm(self.translation), np.linalg.norm(other.translation), 1e-12)
         return bool(np.linalg.norm(self.rotation - other.rotation) > rtol * size
                     or np.linalg.norm(self.translation - other.translation) > rtol * scale)
+
+    def is_zero(self) -> bool:
+        return not (np.any(self.rotation) or np.any(self.translation))
 
     def summary(self) -> dict:
         """The rates as a user reads them: degrees and percent per metre."""
@@ -71,7 +77,7 @@ def estimate(T_S_C_frontend: list[np.ndarray], T_S_C_smoothed: list[np.ndarray],
     r_R = np.einsum("nji,njk->nik", Rs_prev, Rs_next)
     lengths = np.linalg.norm(z_t, axis=1)
     # each step's difference, rotated into S by the front-end's previous pose
-    rotations = np.einsum("nij,nj->ni", R_prev, Rotation.from_matrix(np.einsum("nji,njk->nik", z_R, r_R)).as_rotvec())
+    rotations = np.einsum("nij,nj->ni", R_prev, Rotation.from_matrix(np.einsum("nij,nkj->nik", r_R, z_R)).as_rotvec())
     translations = np.einsum("nij,nj->ni", R_prev, r_t - z_t)
     norm = float(lengths @ lengths)
     if norm == 0.0:
@@ -92,21 +98,23 @@ def as_vector(rates: DriftRates) -> np.ndarray:
 class Settle:
     """The fixed point of `rates -> estimate(frontend, smoothed under rates)`. Each solve
     recovers a share `s` of the rates still in the odometry, `fit(r) - r = s (r* - r)`, so two
-    steps measure the share (separately for rotation and translation) and the next guess is
-    `r + (fit(r) - r) / s` (Aitken's extrapolation, the share kept within [min_share, 1])."""
+    fits measure the share (a secant, separately for rotation and translation) and the next
+    guess is `r + (fit(r) - r) / s` (the share kept within [min_share, 1])."""
 
     def __init__(self, min_share: float = 0.05):
         self.min_share = min_share
-        self.step: np.ndarray | None = None
+        self.last: tuple[np.ndarray, np.ndarray] | None = None  # the last guess and its step
 
     def next(self, current: DriftRates, fitted: DriftRates) -> DriftRates:
-        step = as_vector(fitted) - as_vector(current)
-        guess = as_vector(fitted).copy()
-        if self.step is not None:
+        r = as_vector(current)
+        step = as_vector(fitted) - r
+        guess = r + step
+        if self.last is not None:
+            r_last, step_last = self.last
             for block in (slice(0, 3), slice(3, 6)):
-                before = float(self.step[block] @ self.step[block])
-                if before > 0.0:
-                    share = np.clip(1.0 - float(step[block] @ self.step[block]) / before, self.min_share, 1.0)
-                    guess[block] = as_vector(current)[block] + step[block] / share
-        self.step = step
+                moved = r[block] - r_last[block]
+                if float(moved @ moved) > 0.0:
+                    share = -float((step[block] - step_last[block]) @ moved) / float(moved @ moved)
+                    guess[block] = r[block] + step[block] / np.clip(share, self.min_share, 1.0)
+        self.last = (r, step)
         return DriftRates(guess[:3], guess[3:])

@@ -5,7 +5,8 @@ LocalOrientedPlane3Factor).
 
 `FactorBuilder` makes the factors from the configuration (shared by the online iSAM2 graph and
 the offline batch graph); `IncrementalGraph` wraps iSAM2 and keeps the index of every
-plane-to-BIM factor so that a revised association can be removed again.
+plane-to-BIM factor, so that a revised association can be removed again, and of every odometry
+factor, so that the front-end's drift, once measured, can be taken out of them all.
 """
 
 from __future__ import annotations
@@ -136,6 +137,7 @@ class IncrementalGraph:
         # (index table, its key, position in the queued factors) of each factor whose iSAM2 index is kept
         self._tracked: list[tuple[dict, int, int]] = []
         self._remove: list[int] = []
+        self._reorder = False  # the next update re-adds factors of every pose
         self.bim_index: dict[int, int] = {}  # landmark -> its plane-to-BIM factor in iSAM2
         self.odometry_index: dict[int, int] = {}  # keyframe -> its odometry factor (from the one before) in iSAM2
         self._copies = 0  # observations of frozen landmarks so far
@@ -183,8 +185,11 @@ class IncrementalGraph:
 
     def add_odometry(self, k: int, factor: gtsam.NonlinearFactor) -> None:
         """Keyframe k's odometry factor; one it had before is removed."""
+        if any(t is self.odometry_index and q == k for t, q, _ in self._tracked):
+            raise ValueError(f"keyframe {k} already has an odometry factor queued")
         if k in self.odometry_index:
             self._remove.append(self.odometry_index.pop(k))
+            self._reorder = True
         self._add_tracked(self.odometry_index, k, factor)
 
     def remove_bim(self, j: int) -> None:
@@ -194,7 +199,15 @@ class IncrementalGraph:
         """Apply the queued factors and values; return the new estimates of `keys` (the first
         estimate after an update pays for iSAM2's back-substitution, so it is timed with it)."""
         start = time.perf_counter()
-        result = self.isam.update(self._factors, self._values, self._remove)
+        params = gtsam.ISAM2UpdateParams()
+        params.removeFactorIndices = self._remove
+        if self._reorder:
+            # iSAM2 orders the variables of new factors last, to keep them near the root; when
+            # the new factors touch every pose (the odometry re-added), that puts every pose in
+            # one root clique (measured: a 15 s update, marginals minutes each). No constraint:
+            # plain COLAMD.
+            params.constrainedKeys = gtsam.KeyGroupMap()
+        result = self.isam.update(self._factors, self._values, params)
         estimate = self.isam.calculateEstimate(sorted(set(keys))) if keys else None
         self.update_seconds += time.perf_counter() - start
         indices = result.getNewFactorsIndices()
@@ -202,7 +215,7 @@ class IncrementalGraph:
             table[key] = indices[position]
         self._factors = gtsam.NonlinearFactorGraph()
         self._values = gtsam.Values()
-        self._tracked, self._remove = [], []
+        self._tracked, self._remove, self._reorder = [], [], False
         return estimate
 
     def marginal(self, key: int) -> np.ndarray:

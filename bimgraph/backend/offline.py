@@ -148,7 +148,7 @@ class OfflineEstimator:
             values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
         # with no drift to take out, small step residuals cannot tell a precise front-end from
         # walls that gave way to a biased one: the noise stays as given
-        if cfg.estimate_odometry_noise and self.odometry.drift.differs(drift.DriftRates(), 0.0):
+        if cfg.estimate_odometry_noise and not self.odometry.drift.is_zero():
             variance = self.odometry.estimated_variance(keyframes, graph, values, cfg.tolerance_confidence,
                                                         cfg.odometry_noise_floor)
             if not np.allclose(variance, self.odometry.variance, rtol=2 * cfg.drift_rtol):

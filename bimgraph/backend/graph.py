@@ -218,6 +218,10 @@ class IncrementalGraph:
         self._tracked, self._remove, self._reorder = [], [], False
         return estimate
 
+    def estimate(self) -> gtsam.Values:
+        """Every variable's current estimate (a full back-substitution)."""
+        return self.isam.calculateEstimate()
+
     def marginal(self, key: int) -> np.ndarray:
         return self.isam.marginalCovariance(key)
 

@@ -67,7 +67,7 @@ class OfflineEstimator:
         for kf in keyframes:
             self.online.process(kf)
         timings = {"online_pass_s": time.perf_counter() - start}
-        values = self.online.graph.isam.calculateEstimate()
+        values = self.online.graph.estimate()
         observations = {kf.index: observations_of(kf, self.online.build.default_plane_cov) for kf in keyframes}
 
         params = gtsam.LevenbergMarquardtParams()

@@ -64,4 +64,4 @@ def observed_planes_isam2(graph, landmarks: Sequence) -> list[ObservedPlane]:
     `bim_index`): every landmark at the current iSAM2 estimate."""
     factors = graph.isam.getFactorsUnsafe()
     bim_factors = {j: factors.at(i) for j, i in graph.bim_index.items()}
-    return observed_planes(landmarks, graph.isam.calculateEstimate(), graph.joint, bim_factors)
+    return observed_planes(landmarks, graph.estimate(), graph.joint, bim_factors)

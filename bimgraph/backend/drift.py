@@ -82,7 +82,7 @@ def estimate(T_S_C_frontend: list[np.ndarray], T_S_C_smoothed: list[np.ndarray],
     norm = float(lengths @ lengths)
     if norm == 0.0:
         return DriftRates()
-    rates = [lengths @ np.asarray(rotations) / norm, lengths @ np.asarray(translations) / norm]
+    rates = [lengths @ rotations / norm, lengths @ translations / norm]
     if step_sigmas is not None:
         # each component of a rate has the standard error sigma / sqrt(sum of squared lengths)
         for block, sigma in enumerate(step_sigmas):

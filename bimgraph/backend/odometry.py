@@ -1,6 +1,7 @@
-"""The offline graph's model of the front-end's odometry: its steps without the drift measured
-so far (`bimgraph.backend.drift`), under its noise scaled by the variance factors estimated
-from the smoothed steps (`bimgraph.backend.tolerance`). No I/O."""
+"""The graph's model of the front-end's odometry (online and offline): its poses, parsed once,
+its steps without the drift measured so far (`bimgraph.backend.drift`), under its noise scaled
+by the variance factors estimated from the smoothed steps (`bimgraph.backend.tolerance`,
+offline only). No I/O."""
 
 from __future__ import annotations
 

@@ -113,12 +113,12 @@ class OfflineEstimator:
         bim_factor = bim_factor or self._judged_factor
         graph = gtsam.NonlinearFactorGraph()
         graph.add(build.extrinsic_prior(self.online.prior.T_B_S, self.online.prior.cov))
-        graph.add(build.first_pose(keyframes[0].index, keyframes[0].pose))
+        graph.add(build.first_pose(keyframes[0].index, self.odometry.pose(keyframes[0])))
         for previous, kf in zip(keyframes, keyframes[1:]):
             graph.add(self.odometry.factor(previous, kf))
         if self.online.gravity_aligned:
             for kf in keyframes[1:]:
-                graph.add(build.gravity(kf.index, kf.pose))
+                graph.add(build.gravity(kf.index, self.odometry.pose(kf)))
         for lm in self._active():
             for k, i in lm.observations:
                 obs = observations[k][i]

@@ -147,14 +147,14 @@ class Backend:
     def _add_pose(self, kf: Keyframe) -> np.ndarray:
         self._keyframes.append(kf)
         if self._previous is None:
-            self.graph.add(self.build.first_pose(kf.index, kf.pose))
-            guess = kf.pose
+            guess = self.odometry.pose(kf)
+            self.graph.add(self.build.first_pose(kf.index, guess))
         else:
             previous, T_S_Cprev = self._previous
             self.graph.add_odometry(kf.index, self.odometry.factor(previous, kf))
             guess = T_S_Cprev @ self.odometry.step(previous, kf)
             if self.gravity_aligned:  # (the first pose's prior holds its tilt already)
-                self.graph.add(self.build.gravity(kf.index, kf.pose))
+                self.graph.add(self.build.gravity(kf.index, self.odometry.pose(kf)))
         self.graph.insert_pose(kf.index, guess)
         return guess
 

@@ -274,8 +274,9 @@ class BimAssociationConfig(Section):
     """Landmark -> BIM face association, its geometric filters and its revision."""
 
     gate_probability: float = Field(0.999, gt=0, lt=1, description="chi-square gate (3 dof) on the Mahalanobis distance in B with the joint marginal of landmark, anchor and extrinsic")
-    face_normal_deg: float = Field(1.5, gt=0, description="as-built tolerance added to the gate covariance: normal")
-    face_offset_m: float = Field(0.05, gt=0, description="as-built tolerance added to the gate covariance: offset")
+    face_normal_deg: float = Field(1.5, gt=0, description="as-built tolerance added to the gate covariance: normal, turned about the vertical...")
+    face_plumb_deg: float = Field(0.5, gt=0, description="...and leaning out of plumb (the normal turning toward the vertical): walls stand far more nearly plumb than on their line, while a board leaning on a wall is off by degrees")
+    face_offset_m: float = Field(0.05, gt=0, description="...and offset")
     max_normal_angle_deg: float = Field(20.0, gt=0, le=90, description="faces whose normals differ more than this are not scored")
     min_observations: int = Field(3, ge=1, description="a landmark is matched only once observed this many times")
     retry_growth: float = Field(1.5, ge=1, description="an unmatched landmark is scored again once its observation count has grown by this factor")

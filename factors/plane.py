@@ -109,14 +109,32 @@ def face_tolerance_coordinates(basis: np.ndarray, centre: np.ndarray | None) -> 
     return np.array([[-c[0], -c[1], 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
 
-def face_tolerance_cov(basis: np.ndarray, centre: np.ndarray | None, sigma_normal_rad: float, sigma_offset_m: float) -> np.ndarray:
+def face_tolerance_cov(basis: np.ndarray, centre: np.ndarray | None, sigma_normal_rad: float, sigma_offset_m: float,
+                       sigma_plumb_rad: float | None = None) -> np.ndarray:
     """Covariance of the plane-to-BIM residual `e` when the built plane strays from the face
     by a tilt of `sigma_normal_rad` and an offset *at the face centre* of `sigma_offset_m`,
     independently (`face_tolerance_coordinates`). A face far from B's origin so gets a large,
     correlated `e_3` variance, not the origin's `sigma_offset_m`, which would let its tilt
-    stand for metres of offset at the face."""
+    stand for metres of offset at the face. With `sigma_plumb_rad`, the tilt out of plumb (the
+    normal turning toward B's z) has that sigma and `sigma_normal_rad` is left to the turn about
+    the vertical; a level face (normal along z) has only tilt out of level, `sigma_plumb_rad`."""
+    basis = np.asarray(basis, dtype=float)
+    cov_tilt = sigma_normal_rad**2 * np.eye(2)
+    if sigma_plumb_rad is not None:
+        n = np.cross(basis[:, 0], basis[:, 1])
+        h = np.cross([0.0, 0.0, 1.0], n)
+        if np.linalg.norm(h) < 1e-6:
+            cov_tilt = sigma_plumb_rad**2 * np.eye(2)
+        else:
+            h /= np.linalg.norm(h)
+            v = np.cross(n, h)
+            cov_n = sigma_normal_rad**2 * np.outer(h, h) + sigma_plumb_rad**2 * np.outer(v, v)
+            cov_tilt = basis.T @ cov_n @ basis
     M_inv = np.linalg.inv(face_tolerance_coordinates(basis, centre))
-    return M_inv @ np.diag([sigma_offset_m**2, sigma_normal_rad**2, sigma_normal_rad**2]) @ M_inv.T
+    cov = np.zeros((3, 3))
+    cov[0, 0] = sigma_offset_m**2
+    cov[1:, 1:] = cov_tilt
+    return M_inv @ cov @ M_inv.T
 
 
 def _custom(plane_z, noise, keys):

@@ -201,6 +201,26 @@ def test_ambiguous_faces_wait_for_the_extent():
     assert [m.face for m in bim.match([PlaneInB(0, plane, cov, extent, 5.0)])] == ["b"]
 
 
+def test_a_plane_leaning_out_of_plumb_is_no_wall():
+    """The gate's as-built tolerance: a plane turned 3 degrees about the vertical, 5 cm off,
+    may be its wall (built off its line, or the extrinsic's heading); one leaning 3 degrees out
+    of plumb about its centre line (a board on the wall) is not."""
+    from bimgraph.backend.associate_bim import PlaneInB
+    from bimgraph.bim.planemap import BimFace, PlaneMap
+
+    cfg = BackendConfig().bim_association
+    poly = [(0.0, 0.0, 0.0), (4.0, 0.0, 0.0), (4.0, 0.0, 3.0), (0.0, 0.0, 3.0)]
+    bim = BimAssociator(FaceIndex(PlaneMap(faces=[BimFace(id="a", wall_guid="a", normal=(0, 1, 0), offset=0.0,
+                                                               polygon=poly)]), cfg), cfg)
+    centre = np.array([2.0, 0.05, 1.5])
+    extent = np.array([[0.5, 0.05, 0.5], [3.5, 0.05, 0.5], [3.5, 0.05, 2.5], [0.5, 0.05, 2.5]])
+    cov = np.diag([1e-6, 1e-6, 1e-6, 1e-6])
+    angle = np.radians(3.0)
+    for axis, matched in (([0, 0, 1], True), ([1, 0, 0], False)):
+        n = gtsam.Rot3.Rodrigues(np.asarray(axis, dtype=float) * angle).matrix() @ np.array([0.0, 1.0, 0.0])
+        plane = np.r_[n, -n @ centre]
+        assert (len(bim.match([PlaneInB(0, plane, cov, extent, 6.0)])) == 1) is matched
+
 def test_align_from_seeds(cfg):
     rng = np.random.default_rng(4)
     T_B_S = exp_se3(np.r_[rng.normal(size=3) * 0.3, rng.normal(size=3) * 2])

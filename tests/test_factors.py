@@ -193,7 +193,8 @@ def test_face_tolerance_is_about_the_face_centre(seed):
     """The plane-to-BIM noise: mapped to (offset at the face centre, two tilts), as the
     deviation report reads a residual, it is the configured tolerance, wherever the face lies
     from B's origin; and a plane turned about the face centre within the tolerance scores as
-    little as one turned about the origin's foot does for a face through the origin."""
+    little as one turned about the origin's foot does for a face through the origin; with a
+    plumb tolerance, leaning out of plumb is scored by it."""
     from bimgraph.bim.planemap import BimFace
     from bimgraph.deviations.estimate import deviation_terms
     from factors import face_tolerance_cov
@@ -210,7 +211,14 @@ def test_face_tolerance_is_about_the_face_centre(seed):
     _, H = deviation_terms(np.zeros(3), face)
     np.testing.assert_allclose(H @ cov @ H.T, np.diag([0.02**2, 0.01**2, 0.01**2]), atol=1e-12)
     # a built plane turned by 0.01 rad about a vertical axis through the face centre
-    turned = gtsam.Rot3.Rz(0.01).matrix() @ n
-    built = np.r_[turned, -turned @ centre]
-    e = np.r_[basis.T @ built[:3], plane[3] - built[3]]
-    assert e @ np.linalg.solve(cov, e) == pytest.approx(1.0, rel=0.01)  # first order in the angle
+    def score(cov, rotation):
+        built_n = rotation @ n
+        e = np.r_[basis.T @ built_n, plane[3] + built_n @ centre]
+        return e @ np.linalg.solve(cov, e)
+
+    assert score(cov, gtsam.Rot3.Rz(0.01).matrix()) == pytest.approx(1.0, rel=0.01)  # first order in the angle
+    # with a plumb tolerance of its own: leaning 0.002 rad scores as turning 0.01 rad does
+    cov = face_tolerance_cov(basis, centre, 0.01, 0.02, 0.002)
+    horizontal = np.cross([0.0, 0.0, 1.0], n)
+    assert score(cov, gtsam.Rot3.Rz(0.01).matrix()) == pytest.approx(1.0, rel=0.01)
+    assert score(cov, gtsam.Rot3.Rodrigues(0.002 * horizontal).matrix()) == pytest.approx(1.0, rel=0.01)

@@ -117,7 +117,8 @@ class BimAssociator:
         self.gate = chi2.ppf(cfg.gate_probability, 3)
         self.cos_max = np.cos(np.radians(cfg.max_normal_angle_deg))
         # the as-built tolerance about each face's centre, in the residual of that face
-        self.tolerance = np.array([face_tolerance_cov(basis, centre, np.radians(cfg.face_normal_deg), cfg.face_offset_m)
+        self.tolerance = np.array([face_tolerance_cov(basis, centre, np.radians(cfg.face_normal_deg), cfg.face_offset_m,
+                                                     np.radians(cfg.face_plumb_deg))
                                    for basis, centre in zip(faces.bases, faces.centres)]).reshape(-1, 3, 3)
 
     def eligible(self, area: float, n_observations: int, last_attempt: int = 0) -> bool:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import gtsam
 import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
@@ -36,10 +37,12 @@ class DriftRates:
 
     def corrected(self, T_S_prev: np.ndarray, T_prev_k: np.ndarray) -> np.ndarray:
         """The front-end's step `T_prev_k` from its pose `T_S_prev`, without the drift."""
+        if self.is_zero():
+            return T_prev_k
         R_S_prev = T_S_prev[:3, :3]
         length = float(np.linalg.norm(T_prev_k[:3, 3]))
         # a rotation about S's axes, seen from the previous keyframe, before the step's own
-        rotation = Rotation.from_rotvec(R_S_prev.T @ self.rotation * length).as_matrix()
+        rotation = gtsam.Rot3.Expmap(R_S_prev.T @ self.rotation * length).matrix()
         return make_pose(rotation @ T_prev_k[:3, :3], T_prev_k[:3, 3] + R_S_prev.T @ self.translation * length)
 
     def differs(self, other: DriftRates, rtol: float) -> bool:

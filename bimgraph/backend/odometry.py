@@ -24,6 +24,7 @@ class OdometryModel:
         self.drift = DriftRates()
         self.variance = np.ones(2)  # factors on the given noise: rotation, translation
         self._poses: dict[int, np.ndarray] = {}  # keyframe -> its front-end pose (parsing it is slow)
+        self._covs: dict[int, np.ndarray] = {}  # keyframe -> its step's covariance as given
 
     def pose(self, kf: Keyframe) -> np.ndarray:
         """The front-end's `T_S_C` of keyframe `kf` (one keyframe per index)."""
@@ -31,10 +32,14 @@ class OdometryModel:
             self._poses[kf.index] = kf.pose
         return self._poses[kf.index]
 
+    def _given_cov(self, kf: Keyframe) -> np.ndarray:
+        if kf.index not in self._covs:
+            self._covs[kf.index] = self.build.default_odometry_cov if kf.cov is None else np.asarray(kf.cov)
+        return self._covs[kf.index]
+
     def _cov(self, kf: Keyframe) -> np.ndarray:
-        cov = self.build.default_odometry_cov if kf.cov is None else np.asarray(kf.cov)
         scale = np.sqrt(np.repeat(self.variance, 3))
-        return cov * np.outer(scale, scale)
+        return self._given_cov(kf) * np.outer(scale, scale)
 
     def step(self, previous: Keyframe, kf: Keyframe) -> np.ndarray:
         """The front-end's step from `previous` to `kf` without its drift."""
@@ -47,7 +52,7 @@ class OdometryModel:
 
     def step_sigmas(self, keyframes: list[Keyframe]) -> tuple[float, float]:
         """The noise per step and axis, rotation (rad) and translation (m), on average."""
-        diag = np.mean([np.diag(self._cov(kf)) for kf in keyframes[1:]], axis=0)
+        diag = np.mean([np.diag(self._given_cov(kf)) for kf in keyframes[1:]], axis=0) * np.repeat(self.variance, 3)
         return float(np.sqrt(diag[:3].mean())), float(np.sqrt(diag[3:].mean()))
 
     def estimated_variance(self, keyframes: list[Keyframe], graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,

@@ -321,6 +321,7 @@ class OfflineConfig(Section):
     tolerance_floor_deg: float = Field(0.1, gt=0, description="the estimated normal tolerance is at least this...")
     tolerance_floor_m: float = Field(0.002, gt=0, description="...and the offset tolerance at least this (what plans and sensors resolve)")
     tolerance_rounds: int = Field(3, ge=1, description="estimate, re-judge with GNC's thresholds, re-solve: at most this many times per GNC")
+    studentized: bool = Field(True, description="then judge each kept (or direction-kept) factor against the rest of the graph, with its own pull taken out (Baarda's data snooping: the worst failing one is demoted, the graph re-solved, until all pass), under the same thresholds: a wall few others check pulls the poses that see it toward the plan and hides its own offset")
     estimate_drift: bool = Field(True, description="measure the front-end's systematic drift (constant rates per metre of rotation and translation, in its frame S) from the smoothed poses and take it out of the odometry factors (bimgraph.backend.drift)")
     drift_probability: float = Field(0.999, gt=0, lt=1, description="a drift rate (rotation or translation) is taken out only if significant at this probability against the odometry's noise (a random walk shows a trend too)")
     estimate_odometry_noise: bool = Field(True, description="with the drift taken out, tighten the odometry noise (the front-end's covariance, or noise.odometry_*) to what the smoothed steps show: variance component estimation, as for the walls; never looser than given")

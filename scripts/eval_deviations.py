@@ -112,7 +112,7 @@ def evaluate(plane_map: PlaneMap, keyframes, initial, truth, T_B_C_true, T_B_S_t
             Counter(kinds[o] for o in landmarks[u.landmark].observations).most_common(1)[0][0] != "wall"
             for u in data.unplanned)
     rot, trans = extrinsic_error(res.T_B_S, T_B_S_true)
-    not_kept = [pair for pair, verdict in est.verdicts.items() if verdict != KEPT]
+    not_kept = [pair for pair, verdict in est.judge.verdicts.items() if verdict != KEPT]
     sigma = np.sqrt(np.diag(res.cov_T_B_S))
     out.update(ext_deg=rot, ext_cm=trans, ext_sigma_deg=float(np.degrees(sigma[:3].max())), ext_sigma_cm=float(sigma[3:5].max() * 100),
                ate_m=ate(res.T_B_C, T_B_C_true), not_kept=len(not_kept),

@@ -100,3 +100,24 @@ def test_never_looser_than_configured_nor_tighter_than_the_floor():
 
 def test_a_group_without_redundancy_keeps_its_tolerance():
     assert np.all(tolerance.variance_factors([], 0.95) == 1.0)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_studentized_residual_is_the_factor_measured_against_the_rest(seed):
+    """Baarda's statistic of a factor in the solved problem equals its residual measured
+    against the solution without it, over that residual's covariance: a factor that pulled the
+    solution toward itself is judged by how far off it is, not by what is left after the pull."""
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(5, 3, 3))  # whitened Jacobians of five factors on one 3-vector
+    z = rng.normal(size=(5, 3))
+    z[0] += 4.0  # the first one is off
+    info = np.einsum("kji,kjl->il", A, A)
+    x = np.linalg.solve(info, np.einsum("kji,kj->i", A, z))
+    t = tolerance.studentized(A[0], z[0] - A[0] @ x, np.linalg.inv(info))
+    cov_rest = np.linalg.inv(info - A[0].T @ A[0])
+    x_rest = cov_rest @ np.einsum("kji,kj->i", A[1:], z[1:])
+    d = z[0] - A[0] @ x_rest
+    assert t == pytest.approx(d @ np.linalg.solve(np.eye(3) + A[0] @ cov_rest @ A[0].T, d), rel=1e-9)
+    assert t > float((z[0] - A[0] @ x) @ (z[0] - A[0] @ x))  # more than is left after the pull
+    # a factor the rest does not check at all cannot be tested
+    assert tolerance.studentized(np.eye(3), np.ones(3), np.eye(3)) is None

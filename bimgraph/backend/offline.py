@@ -8,11 +8,11 @@ poses and taken out of its odometry (and its noise tightened to what the smoothe
 `bimgraph.backend.odometry`), and with the smoothed estimates and marginals the matches that
 stopped fitting are revised, unmatched landmarks are associated, landmarks spanning coplanar
 sections of a wall are split per section, and landmarks matched to the same BIM face are
-merged into one (the loop closures a drifting causal pass misses); until a
-round changes nothing. Once the association settles, graduated non-convexity judges which
-plane-to-BIM factors the alignment keeps (`_gnc`): the walls consistent with each other decide
-the extrinsic and the poses, and a wall built off plan is measured against them, to the
-tolerance the kept walls show; the rounds then go on until neither changes.
+merged into one (the loop closures a drifting causal pass misses); until a round changes
+nothing. Once the association settles, the robust alignment judges which plane-to-BIM
+factors the alignment keeps (`bimgraph.backend.robust_alignment`): the walls consistent with
+each other decide the extrinsic and the poses, and a wall built off plan is measured against
+them, to the tolerance the kept walls show; the rounds then go on until neither changes.
 """
 
 from __future__ import annotations
@@ -24,25 +24,22 @@ from collections.abc import Callable
 
 import gtsam
 import numpy as np
-from scipy.stats import chi2
 
-from bimgraph.backend import drift, gnc, tolerance
+from bimgraph.backend import drift
 from bimgraph.backend.alignment import Alignment
 from bimgraph.backend.associate_bim import PlaneInB, plane_in_B
 from bimgraph.backend.graph import E, L, X, cov_T_B_S, pose3
-from bimgraph.backend.landmarks import DIRECTION, KEPT, OUT, Landmark, transform_points
+from bimgraph.backend.landmarks import KEPT, Landmark, transform_points
 from bimgraph.backend.odometry import OdometryModel
 from bimgraph.backend.associate_slam import same_plane_d2
 from bimgraph.backend.online import Backend, Oracle, misfit, observations_of, revision_reason, unmatch
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
+from bimgraph.backend.robust_alignment import RobustAlignment
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig
 from bimgraph.geometry import inverse, plane_from_frame
 from bimgraph.sequence.format import Keyframe
-from factors.plane import face_tolerance_coordinates, local_plane_error, predict_local_plane
-
-# An offset tolerance that leaves the offset to the observations (metres: no wall is this far off).
-_FREE_OFFSET_M = 100.0
+from factors.plane import predict_local_plane
 
 
 class OfflineEstimator:
@@ -50,16 +47,13 @@ class OfflineEstimator:
                  listener: Listener | None = None, oracle: Oracle | None = None):
         self.cfg = cfg
         self.apart: set[tuple[int, str]] = set()  # (landmark, face) pairs merging found not one plane
-        # GNC's verdict on each (landmark, face) pair it judged (KEPT, DIRECTION or OUT)
-        self.verdicts: dict[tuple[int, str], str] = {}
         self.listener = listener or Listener()
         # the causal pass reports nothing (the listener hears the smoothed results) and leaves
         # the drift to the rounds
         self.online = Backend(plane_map, cfg, initial, None, oracle, covariance=False, drift_every=0)
         self.faces, self.bim, self.landmarks = self.online.faces, self.online.bim, self.online.landmarks
         self.oracle = oracle
-        # the plane-to-BIM tolerance (normal rad, offset m): configured, tightened after GNC
-        self.tolerance = self.online.build.bim_tolerance()
+        self.judge = RobustAlignment(self.faces, self.online.build, self.landmarks, cfg.offline)
         self.odometry = OdometryModel(self.online.build)  # the front-end's drift and noise, as measured
 
     def run(self, keyframes: list[Keyframe]) -> Results:
@@ -89,9 +83,9 @@ class OfflineEstimator:
                 self._revise(values) | self._associate(values, marginals)
                 | self._merge(values, marginals) | self._split(values))
             t_assoc += time.perf_counter() - t1
-            if not changed and self.cfg.offline.gnc and set(self._matches()) != set(self.verdicts):
+            if not changed and self.cfg.offline.gnc and set(self._matches()) != set(self.judge.verdicts):
                 t2 = time.perf_counter()
-                values = self._gnc(keyframes, observations, values)
+                values = self.judge.decide(self._matches(), functools.partial(self._graph, keyframes, observations), values)
                 t_opt += time.perf_counter() - t2
                 changed = True
             if not changed:
@@ -108,9 +102,10 @@ class OfflineEstimator:
     def _graph(self, keyframes: list[Keyframe], observations,
                bim_factor: Callable[[Landmark], gtsam.NonlinearFactor | None] | None = None) -> gtsam.NonlinearFactorGraph:
         """The whole graph, from the front-end poses and the current associations; each
-        matched landmark's plane-to-BIM factor from `bim_factor` (default: as GNC judged it)."""
+        matched landmark's plane-to-BIM factor from `bim_factor` (default: as the robust
+        alignment judged it)."""
         build = self.online.build
-        bim_factor = bim_factor or self._judged_factor
+        bim_factor = bim_factor or self.judge.judged_factor
         graph = gtsam.NonlinearFactorGraph()
         graph.add(build.extrinsic_prior(self.online.prior.T_B_S, self.online.prior.cov))
         graph.add(build.first_pose(keyframes[0].index, self.odometry.pose(keyframes[0])))
@@ -156,90 +151,6 @@ class OfflineEstimator:
                 graph = self._graph(keyframes, observations)
                 values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
         return graph, values
-
-    def _gnc(self, keyframes: list[Keyframe], observations, values: gtsam.Values) -> gtsam.Values:
-        """Judge which plane-to-BIM factors the alignment keeps whole (`KEPT`); of the others,
-        the wall's direction is kept where it fits and only its offset is left to the
-        observations (`DIRECTION`: built parallel to plan, off its line), else the factor
-        goes (`OUT`). The landmark keeps its face, to be measured (unless a later round's
-        revision finds it too far off to be that wall at all).
-
-        The objective is truncated least squares: every factor but the plane-to-BIM ones, plus
-        `min(r^2, c^2)` of each of those. It has two starts: the round's estimate under the
-        robust kernel (and the earlier verdicts, if GNC ran before), which the walls seen first
-        decide, and graduated non-convexity's (`bimgraph.backend.gnc`), which the majority of
-        walls decides. Each start is judged and re-solved under its verdicts; the one of lower
-        cost wins. So a wall moved in the first room cannot hold the alignment against the
-        rest, nor can several walls moved alike outvote consistent walls that the kernel
-        already follows.
-
-        Then the tolerance is tightened to what the kept walls show
-        (`bimgraph.backend.tolerance`) and the winner judged again under it, until it settles:
-        a wall that fit the configured tolerance may not fit the building's own."""
-        cfg = self.cfg.offline
-        matches = self._matches()
-        c2, c2_direction = chi2.ppf(cfg.gnc_probability, 3), chi2.ppf(cfg.gnc_probability, 2)
-        params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(cfg.gnc_iterations)
-        params.setRelativeErrorTol(cfg.relative_error_tol)
-        without_bim = self._graph(keyframes, observations, lambda lm: None)
-
-        def judged(values):
-            """The TLS cost of the estimate under the verdicts at `values`, the verdicts, that
-            estimate, and the graph it solves."""
-            whole = self._squared_residuals(matches, values) <= c2
-            direction = self._squared_residuals(matches, values, free_offset=True) <= c2_direction
-            verdicts = {m: KEPT if w else DIRECTION if d else OUT for m, w, d in zip(matches, whole, direction)}
-            graph = self._graph(keyframes, observations, lambda lm: self._bim_factor(lm, 1.0, verdicts[lm.id, lm.face]))
-            values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-            truncated = np.minimum(self._squared_residuals(matches, values), c2)
-            return without_bim.error(values) + 0.5 * float(truncated.sum()), verdicts, values, graph
-
-        candidates = [judged(values)]
-        r2 = self._squared_residuals(matches, values)
-        mu = gnc.initial_mu(r2, c2)
-        if mu is not None:
-            for mu in gnc.schedule(mu, cfg.gnc_step):
-                weights = dict(zip(matches, gnc.gm_weights(r2, mu, c2)))
-                graph = self._graph(keyframes, observations, lambda lm: self._bim_factor(lm, weights[lm.id, lm.face]))
-                values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-                r2 = self._squared_residuals(matches, values)
-            candidates.append(judged(values))
-        _, self.verdicts, values, graph = min(candidates, key=lambda candidate: candidate[0])
-        for _ in range(cfg.tolerance_rounds if cfg.estimate_tolerance else 0):
-            estimated = self._estimated_tolerance(graph, values)
-            if np.allclose(estimated, self.tolerance, rtol=0.1):
-                break
-            self.tolerance = estimated
-            _, self.verdicts, values, graph = judged(values)
-        return values
-
-    def _estimated_tolerance(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[float, float]:
-        """The tolerance the kept plane-to-BIM factors show at `values`, solved on `graph` (the
-        graph under the current verdicts, Gaussian): `bimgraph.backend.tolerance`."""
-        from bimgraph.deviations.graph import joint_covariance
-
-        marginals = gtsam.Marginals(graph, values)
-        T_S_B = values.atPose3(E)
-        whiten = 1.0 / np.array([self.tolerance[1], self.tolerance[0], self.tolerance[0]])
-        terms = []
-        for (j, face), verdict in self.verdicts.items():
-            if verdict != KEPT:
-                continue
-            lm, row = self.landmarks[j], self.faces.row[face]
-            plane_B = self.faces.planes[row]
-            e, J = local_plane_error(T_S_B, values.atPose3(X(lm.anchor)), values.atOrientedPlane3(L(j)), plane_B, jacobians=True)
-            M = whiten[:, None] * face_tolerance_coordinates(gtsam.Unit3(plane_B[:3]).basis(), self.faces.centres[row])
-            terms.append(tolerance.redundancy(M @ np.hstack(J), M @ e, joint_covariance(marginals, [E, X(lm.anchor), L(j)])))
-        cfg = self.cfg.offline
-        return tolerance.tightened(self.tolerance, tolerance.variance_factors(terms, cfg.tolerance_confidence),
-                                   self.online.build.bim_tolerance(), (np.radians(cfg.tolerance_floor_deg), cfg.tolerance_floor_m))
-
-    def _squared_residuals(self, matches: list[tuple[int, str]], values: gtsam.Values, free_offset: bool = False) -> np.ndarray:
-        """Squared whitened residuals of the plane-to-BIM factors (Gaussian, weight 1), or of
-        their direction alone."""
-        verdict = DIRECTION if free_offset else KEPT
-        return np.array([2.0 * self._bim_factor(self.landmarks[j], 1.0, verdict).error(values) for j, _ in matches])
 
     def _split(self, values: gtsam.Values) -> bool:
         """A landmark whose observations lie on several coplanar sections of a wall becomes one
@@ -316,7 +227,7 @@ class OfflineEstimator:
         from bimgraph.deviations.graph import joint_covariance, observed_planes
 
         return observed_planes(self._active(), values, functools.partial(joint_covariance, marginals),
-                               {lm.id: self._judged_factor(lm) for lm in self._active() if lm.face is not None})
+                               {lm.id: self.judge.judged_factor(lm) for lm in self._active() if lm.face is not None})
 
     def _results(self, keyframes, values, marginals, timings, rounds) -> Results:
         start = time.perf_counter()
@@ -328,7 +239,7 @@ class OfflineEstimator:
         T_S_C = [values.atPose3(X(kf.index)).matrix() for kf in keyframes]
         self.online.resolve_faces(T_B_S)
         for lm in self._active():
-            lm.alignment = self.verdicts.get((lm.id, lm.face), KEPT)
+            lm.alignment = self.judge.verdicts.get((lm.id, lm.face), KEPT)
         face_of, landmark_of = {}, {}
         for lm in self._active():
             for obs, face in zip(lm.observations, lm.observation_faces):
@@ -344,26 +255,12 @@ class OfflineEstimator:
                        T_S_C=T_S_C, T_B_C=[T_B_S @ p for p in T_S_C], T_B_S=T_B_S, cov_T_B_S=cov,
                        unobservable=self.online.unobservable_with(normals),
                        landmarks=self._active(), timings=timings, rounds=rounds, observed_planes=planes,
-                       bim_tolerance=self.tolerance, frontend_drift=self.odometry.summary() if self.cfg.offline.estimate_drift else None)
+                       bim_tolerance=self.judge.tolerance, frontend_drift=self.odometry.summary() if self.cfg.offline.estimate_drift else None)
 
     def _refresh(self, values: gtsam.Values) -> None:
         for lm in self._active():
             self.landmarks.set_estimate(lm.id, values.atOrientedPlane3(L(lm.id)).planeCoefficients(),
                                         values.atPose3(X(lm.anchor)).matrix())
-
-    def _bim_factor(self, lm, weight: float | None = None, verdict: str = KEPT) -> gtsam.NonlinearFactor | None:
-        """The landmark's plane-to-BIM factor: Gaussian with `weight`, or under the robust
-        kernel (None); with the offset left free for `DIRECTION`, none for `OUT`."""
-        if verdict == OUT:
-            return None
-        row = self.faces.row[lm.face]
-        normal_rad, offset_m = self.tolerance
-        tolerance = (normal_rad, _FREE_OFFSET_M if verdict == DIRECTION else offset_m)
-        return self.online.build.bim(lm.anchor, lm.id, self.faces.planes[row], self.faces.centres[row], weight, tolerance)
-
-    def _judged_factor(self, lm) -> gtsam.NonlinearFactor | None:
-        """The factor as GNC judged it, under the robust kernel (also before it judged)."""
-        return self._bim_factor(lm, None, self.verdicts.get((lm.id, lm.face), KEPT))
 
     def _revise(self, values: gtsam.Values) -> bool:
         changed = False

@@ -36,6 +36,20 @@ def redundancy(A: np.ndarray, e: np.ndarray, cov: np.ndarray) -> tuple[np.ndarra
     return np.asarray(e, dtype=float) ** 2, np.diag(R).copy()
 
 
+def studentized(A: np.ndarray, e: np.ndarray, cov: np.ndarray, min_redundancy: float = 0.05) -> float | None:
+    """Baarda's test statistic of one factor: its whitened residual `e` over the covariance
+    that residual has in the graph that includes it, `e^T R^-1 e` with `R = I - A cov A^T`
+    (`A`, `e` and `cov` as for `redundancy`). Chi-square with the residual's dimension when the
+    factor fits, however strongly it pulled the estimate toward itself: the residual as the
+    rest of the graph measures it. None where the rest of the graph barely checks the factor
+    (an eigenvalue of `R` below `min_redundancy`)."""
+    R = np.eye(len(e)) - A @ cov @ A.T
+    R = 0.5 * (R + R.T)
+    if np.linalg.eigvalsh(R)[0] < min_redundancy:
+        return None
+    return float(e @ np.linalg.solve(R, e))
+
+
 def variance_factors(terms: list[tuple[np.ndarray, np.ndarray]], confidence: float,
                      groups: tuple[int, ...] = FACE_GROUPS, min_redundancy: float = 0.05) -> np.ndarray:
     """Upper `confidence` bounds of the variance factors of the component `groups` (for each

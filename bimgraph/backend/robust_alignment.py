@@ -1,0 +1,162 @@
+"""Robust alignment (offline): which plane-to-BIM factors the alignment keeps whole
+(`KEPT`), which by the wall's direction alone (`DIRECTION`: built parallel to plan, off its
+line), which not at all (`OUT`); and the as-built tolerance the kept walls show. A wall built
+off plan so cannot drag the extrinsic and the poses: the walls consistent with each other
+decide them, and it is measured against them. No I/O; the graph comes from the estimator.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import gtsam
+import numpy as np
+from scipy.stats import chi2
+
+from bimgraph.backend import gnc, tolerance
+from bimgraph.backend.associate_bim import FaceIndex
+from bimgraph.backend.graph import E, L, X, FactorBuilder
+from bimgraph.backend.landmarks import DIRECTION, KEPT, OUT, Landmark, LandmarkTable
+from bimgraph.config import OfflineConfig
+from factors.plane import face_tolerance_coordinates, local_plane_error
+
+# An offset tolerance that leaves the offset to the observations (metres: no wall is this far off).
+_FREE_OFFSET_M = 100.0
+
+# The estimator's whole graph, with each matched landmark's plane-to-BIM factor from the callable.
+GraphWith = Callable[[Callable[[Landmark], gtsam.NonlinearFactor | None]], gtsam.NonlinearFactorGraph]
+
+
+class RobustAlignment:
+    def __init__(self, faces: FaceIndex, build: FactorBuilder, landmarks: LandmarkTable, cfg: OfflineConfig):
+        self.faces, self.build, self.landmarks, self.cfg = faces, build, landmarks, cfg
+        # the plane-to-BIM tolerance (normal rad, offset m): configured, tightened by `decide`
+        self.tolerance = build.bim_tolerance()
+        # the verdict on each (landmark, face) pair judged (KEPT, DIRECTION or OUT)
+        self.verdicts: dict[tuple[int, str], str] = {}
+
+    def factor(self, lm: Landmark, weight: float | None = None, verdict: str = KEPT) -> gtsam.NonlinearFactor | None:
+        """The landmark's plane-to-BIM factor: Gaussian with `weight`, or under the robust
+        kernel (None); with the offset left free for `DIRECTION`, none for `OUT`."""
+        if verdict == OUT:
+            return None
+        row = self.faces.row[lm.face]
+        normal_rad, offset_m = self.tolerance
+        tolerance = (normal_rad, _FREE_OFFSET_M if verdict == DIRECTION else offset_m)
+        return self.build.bim(lm.anchor, lm.id, self.faces.planes[row], self.faces.centres[row], weight, tolerance)
+
+    def judged_factor(self, lm: Landmark) -> gtsam.NonlinearFactor | None:
+        """The factor as GNC judged it, under the robust kernel (also before it judged)."""
+        return self.factor(lm, None, self.verdicts.get((lm.id, lm.face), KEPT))
+
+    def decide(self, matches: list[tuple[int, str]], graph_with: GraphWith, values: gtsam.Values) -> gtsam.Values:
+        """Judge which plane-to-BIM factors the alignment keeps whole (`KEPT`); of the others,
+        the wall's direction is kept where it fits and only its offset is left to the
+        observations (`DIRECTION`: built parallel to plan, off its line), else the factor
+        goes (`OUT`). The landmark keeps its face, to be measured (unless a later round's
+        revision finds it too far off to be that wall at all).
+
+        The objective is truncated least squares: every factor but the plane-to-BIM ones, plus
+        `min(r^2, c^2)` of each of those. It has two starts: the round's estimate under the
+        robust kernel (and the earlier verdicts, if GNC ran before), which the walls seen first
+        decide, and graduated non-convexity's (`bimgraph.backend.gnc`), which the majority of
+        walls decides. Each start is judged and re-solved under its verdicts; the one of lower
+        cost wins. So a wall moved in the first room cannot hold the alignment against the
+        rest, nor can several walls moved alike outvote consistent walls that the kernel
+        already follows.
+
+        Then the tolerance is tightened to what the kept walls show
+        (`bimgraph.backend.tolerance`) and the winner judged again under it, until it settles:
+        a wall that fit the configured tolerance may not fit the building's own. Last, each
+        kept factor is judged against the rest of the graph (`studentized`). `matches` are the
+        (landmark, face) pairs to judge; returns the estimate under the verdicts."""
+        cfg = self.cfg
+        c2, c2_direction = chi2.ppf(cfg.gnc_probability, 3), chi2.ppf(cfg.gnc_probability, 2)
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(cfg.gnc_iterations)
+        params.setRelativeErrorTol(cfg.relative_error_tol)
+        without_bim = graph_with(lambda lm: None)
+
+        def judged(values):
+            """The TLS cost of the estimate under the verdicts at `values`, the verdicts, that
+            estimate, and the graph it solves."""
+            whole = self._squared_residuals(matches, values) <= c2
+            direction = self._squared_residuals(matches, values, free_offset=True) <= c2_direction
+            verdicts = {m: KEPT if w else DIRECTION if d else OUT for m, w, d in zip(matches, whole, direction)}
+            graph = graph_with(lambda lm: self.factor(lm, 1.0, verdicts[lm.id, lm.face]))
+            values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+            truncated = np.minimum(self._squared_residuals(matches, values), c2)
+            return without_bim.error(values) + 0.5 * float(truncated.sum()), verdicts, values, graph
+
+        candidates = [judged(values)]
+        r2 = self._squared_residuals(matches, values)
+        mu = gnc.initial_mu(r2, c2)
+        if mu is not None:
+            for mu in gnc.schedule(mu, cfg.gnc_step):
+                weights = dict(zip(matches, gnc.gm_weights(r2, mu, c2)))
+                graph = graph_with(lambda lm: self.factor(lm, weights[lm.id, lm.face]))
+                values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+                r2 = self._squared_residuals(matches, values)
+            candidates.append(judged(values))
+        _, self.verdicts, values, graph = min(candidates, key=lambda candidate: candidate[0])
+        for _ in range(cfg.tolerance_rounds if cfg.estimate_tolerance else 0):
+            estimated = self._estimated_tolerance(graph, values)
+            if np.allclose(estimated, self.tolerance, rtol=0.1):
+                break
+            self.tolerance = estimated
+            _, self.verdicts, values, graph = judged(values)
+        while cfg.studentized and (pair := self._worst_studentized(graph, values, c2, c2_direction)) is not None:
+            self.verdicts[pair] = DIRECTION if self.verdicts[pair] == KEPT else OUT
+            graph = graph_with(lambda lm: self.factor(lm, 1.0, self.verdicts[lm.id, lm.face]))
+            values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+        return values
+
+    def _worst_studentized(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, c2: float,
+                           c2_direction: float) -> tuple[int, str] | None:
+        """The plane-to-BIM factor of `graph` (Gaussian, solved at `values`) that fails its
+        test worst when measured against the rest of the graph (`tolerance.studentized`), or
+        None if every one passes. A wall few others check pulls the poses that see it, and so
+        its landmark, toward the plan: its residual in the solved graph understates how far off
+        it is built, and the walls sharing those poses take part of it (one at a time, then:
+        Baarda's data snooping)."""
+        from bimgraph.deviations.graph import joint_covariance
+
+        marginals = gtsam.Marginals(graph, values)
+        worst, worst_ratio = None, 1.0
+        for (j, face), verdict in self.verdicts.items():
+            if verdict == OUT:
+                continue
+            lm = self.landmarks[j]
+            A, b = self.factor(lm, 1.0, verdict).linearize(values).jacobian()
+            t = tolerance.studentized(A, -b, joint_covariance(marginals, [E, X(lm.anchor), L(j)]))
+            ratio = 0.0 if t is None else t / (c2 if verdict == KEPT else c2_direction)
+            if ratio > worst_ratio:
+                worst, worst_ratio = (j, face), ratio
+        return worst
+
+    def _estimated_tolerance(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[float, float]:
+        """The tolerance the kept plane-to-BIM factors show at `values`, solved on `graph` (the
+        graph under the current verdicts, Gaussian): `bimgraph.backend.tolerance`."""
+        from bimgraph.deviations.graph import joint_covariance
+
+        marginals = gtsam.Marginals(graph, values)
+        T_S_B = values.atPose3(E)
+        whiten = 1.0 / np.array([self.tolerance[1], self.tolerance[0], self.tolerance[0]])
+        terms = []
+        for (j, face), verdict in self.verdicts.items():
+            if verdict != KEPT:
+                continue
+            lm, row = self.landmarks[j], self.faces.row[face]
+            plane_B = self.faces.planes[row]
+            e, J = local_plane_error(T_S_B, values.atPose3(X(lm.anchor)), values.atOrientedPlane3(L(j)), plane_B, jacobians=True)
+            M = whiten[:, None] * face_tolerance_coordinates(gtsam.Unit3(plane_B[:3]).basis(), self.faces.centres[row])
+            terms.append(tolerance.redundancy(M @ np.hstack(J), M @ e, joint_covariance(marginals, [E, X(lm.anchor), L(j)])))
+        cfg = self.cfg
+        return tolerance.tightened(self.tolerance, tolerance.variance_factors(terms, cfg.tolerance_confidence),
+                                   self.build.bim_tolerance(), (np.radians(cfg.tolerance_floor_deg), cfg.tolerance_floor_m))
+
+    def _squared_residuals(self, matches: list[tuple[int, str]], values: gtsam.Values, free_offset: bool = False) -> np.ndarray:
+        """Squared whitened residuals of the plane-to-BIM factors (Gaussian, weight 1), or of
+        their direction alone."""
+        verdict = DIRECTION if free_offset else KEPT
+        return np.array([2.0 * self.factor(self.landmarks[j], 1.0, verdict).error(values) for j, _ in matches])

@@ -104,20 +104,26 @@ def test_a_group_without_redundancy_keeps_its_tolerance():
 
 @pytest.mark.parametrize("seed", range(3))
 def test_studentized_residual_is_the_factor_measured_against_the_rest(seed):
-    """Baarda's statistic of a factor in the solved problem equals its residual measured
-    against the solution without it, over that residual's covariance: a factor that pulled the
-    solution toward itself is judged by how far off it is, not by what is left after the pull."""
+    """Baarda's statistics of a factor in the solved problem equal its residual measured
+    against the solution without it, over that residual's covariance, whole or per component
+    group: a factor that pulled the solution toward itself is judged by how far off it is,
+    not by what is left after the pull."""
     rng = np.random.default_rng(seed)
     A = rng.normal(size=(5, 3, 3))  # whitened Jacobians of five factors on one 3-vector
     z = rng.normal(size=(5, 3))
     z[0] += 4.0  # the first one is off
     info = np.einsum("kji,kjl->il", A, A)
     x = np.linalg.solve(info, np.einsum("kji,kj->i", A, z))
-    t = tolerance.studentized(A[0], z[0] - A[0] @ x, np.linalg.inv(info))
+    e, cov = z[0] - A[0] @ x, np.linalg.inv(info)
     cov_rest = np.linalg.inv(info - A[0].T @ A[0])
     x_rest = cov_rest @ np.einsum("kji,kj->i", A[1:], z[1:])
-    d = z[0] - A[0] @ x_rest
-    assert t == pytest.approx(d @ np.linalg.solve(np.eye(3) + A[0] @ cov_rest @ A[0].T, d), rel=1e-9)
-    assert t > float((z[0] - A[0] @ x) @ (z[0] - A[0] @ x))  # more than is left after the pull
+    d = z[0] - A[0] @ x_rest  # the factor's residual predicted from the rest...
+    S = np.eye(3) + A[0] @ cov_rest @ A[0].T  # ...and that prediction's covariance
+    whole = tolerance.studentized(A[0], e, cov, groups=(0, 0, 0))
+    assert whole == pytest.approx([d @ np.linalg.solve(S, d)], rel=1e-9)
+    assert whole[0] > float(e @ e)  # more than is left after the pull
+    offset, tilt = tolerance.studentized(A[0], e, cov)  # by default offset and tilt apart
+    assert offset == pytest.approx(d[0] ** 2 / S[0, 0], rel=1e-9)
+    assert tilt == pytest.approx(d[1:] @ np.linalg.solve(S[1:, 1:], d[1:]), rel=1e-9)
     # a factor the rest does not check at all cannot be tested
     assert tolerance.studentized(np.eye(3), np.ones(3), np.eye(3)) is None

@@ -105,34 +105,54 @@ class RobustAlignment:
                 break
             self.tolerance = estimated
             _, self.verdicts, values, graph = judged(values)
-        while cfg.studentized and (pair := self._worst_studentized(graph, values, c2, c2_direction)) is not None:
+        while cfg.studentized and (pair := self._worst_studentized(graph, values)) is not None:
             self.verdicts[pair] = DIRECTION if self.verdicts[pair] == KEPT else OUT
             graph = graph_with(lambda lm: self.factor(lm, 1.0, self.verdicts[lm.id, lm.face]))
             values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
         return values
 
-    def _worst_studentized(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, c2: float,
-                           c2_direction: float) -> tuple[int, str] | None:
+    def _worst_studentized(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[int, str] | None:
         """The plane-to-BIM factor of `graph` (Gaussian, solved at `values`) that fails its
-        test worst when measured against the rest of the graph (`tolerance.studentized`), or
+        tests worst when measured against the rest of the graph (`tolerance.studentized`), or
         None if every one passes. A wall few others check pulls the poses that see it, and so
         its landmark, toward the plan: its residual in the solved graph understates how far off
         it is built, and the walls sharing those poses take part of it (one at a time, then:
-        Baarda's data snooping)."""
+        Baarda's data snooping). The offset (1 dof) and the direction (2 dof) are tested apart
+        at `gnc_probability`: a wall built parallel to plan, off its line, is offset alone, which
+        a test over all three components would let pass further off; a direction-kept factor
+        is tested on its direction."""
         from bimgraph.deviations.graph import joint_covariance
 
+        p = self.cfg.gnc_probability
+        thresholds = np.array([chi2.ppf(p, 1), chi2.ppf(p, 2)])
         marginals = gtsam.Marginals(graph, values)
         worst, worst_ratio = None, 1.0
         for (j, face), verdict in self.verdicts.items():
             if verdict == OUT:
                 continue
-            lm = self.landmarks[j]
-            A, b = self.factor(lm, 1.0, verdict).linearize(values).jacobian()
-            t = tolerance.studentized(A, -b, joint_covariance(marginals, [E, X(lm.anchor), L(j)]))
-            ratio = 0.0 if t is None else t / (c2 if verdict == KEPT else c2_direction)
+            A, e = self._deviation_residual(j, face, values)
+            cov = joint_covariance(marginals, [E, X(self.landmarks[j].anchor), L(j)])
+            if verdict == KEPT:
+                t = tolerance.studentized(A, e, cov)
+                ratio = 0.0 if t is None else float(np.max(t / thresholds))
+            else:
+                t = tolerance.studentized(A[1:], e[1:], cov, groups=(0, 0))
+                ratio = 0.0 if t is None else float(t[0] / thresholds[1])
             if ratio > worst_ratio:
                 worst, worst_ratio = (j, face), ratio
         return worst
+
+    def _deviation_residual(self, j: int, face: str, values: gtsam.Values) -> tuple[np.ndarray, np.ndarray]:
+        """Landmark j's plane-to-BIM residual against `face` and its Jacobian over (E, anchor,
+        plane), in deviation coordinates (offset at the face centre, two tilts) whitened by
+        the tolerance: the components `bimgraph.backend.tolerance` tests and estimates apart."""
+        lm, row = self.landmarks[j], self.faces.row[face]
+        plane_B = self.faces.planes[row]
+        e, J = local_plane_error(values.atPose3(E), values.atPose3(X(lm.anchor)), values.atOrientedPlane3(L(j)), plane_B,
+                                 jacobians=True)
+        whiten = 1.0 / np.array([self.tolerance[1], self.tolerance[0], self.tolerance[0]])
+        M = whiten[:, None] * face_tolerance_coordinates(gtsam.Unit3(plane_B[:3]).basis(), self.faces.centres[row])
+        return M @ np.hstack(J), M @ e
 
     def _estimated_tolerance(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[float, float]:
         """The tolerance the kept plane-to-BIM factors show at `values`, solved on `graph` (the
@@ -140,17 +160,11 @@ class RobustAlignment:
         from bimgraph.deviations.graph import joint_covariance
 
         marginals = gtsam.Marginals(graph, values)
-        T_S_B = values.atPose3(E)
-        whiten = 1.0 / np.array([self.tolerance[1], self.tolerance[0], self.tolerance[0]])
         terms = []
         for (j, face), verdict in self.verdicts.items():
-            if verdict != KEPT:
-                continue
-            lm, row = self.landmarks[j], self.faces.row[face]
-            plane_B = self.faces.planes[row]
-            e, J = local_plane_error(T_S_B, values.atPose3(X(lm.anchor)), values.atOrientedPlane3(L(j)), plane_B, jacobians=True)
-            M = whiten[:, None] * face_tolerance_coordinates(gtsam.Unit3(plane_B[:3]).basis(), self.faces.centres[row])
-            terms.append(tolerance.redundancy(M @ np.hstack(J), M @ e, joint_covariance(marginals, [E, X(lm.anchor), L(j)])))
+            if verdict == KEPT:
+                A, e = self._deviation_residual(j, face, values)
+                terms.append(tolerance.redundancy(A, e, joint_covariance(marginals, [E, X(self.landmarks[j].anchor), L(j)])))
         cfg = self.cfg
         return tolerance.tightened(self.tolerance, tolerance.variance_factors(terms, cfg.tolerance_confidence),
                                    self.build.bim_tolerance(), (np.radians(cfg.tolerance_floor_deg), cfg.tolerance_floor_m))

@@ -36,18 +36,22 @@ def redundancy(A: np.ndarray, e: np.ndarray, cov: np.ndarray) -> tuple[np.ndarra
     return np.asarray(e, dtype=float) ** 2, np.diag(R).copy()
 
 
-def studentized(A: np.ndarray, e: np.ndarray, cov: np.ndarray, min_redundancy: float = 0.05) -> float | None:
-    """Baarda's test statistic of one factor: its whitened residual `e` over the covariance
-    that residual has in the graph that includes it, `e^T R^-1 e` with `R = I - A cov A^T`
-    (`A`, `e` and `cov` as for `redundancy`). Chi-square with the residual's dimension when the
-    factor fits, however strongly it pulled the estimate toward itself: the residual as the
-    rest of the graph measures it. None where the rest of the graph barely checks the factor
-    (an eigenvalue of `R` below `min_redundancy`)."""
+def studentized(A: np.ndarray, e: np.ndarray, cov: np.ndarray, groups: tuple[int, ...] = FACE_GROUPS,
+                min_redundancy: float = 0.05) -> np.ndarray | None:
+    """Baarda's test statistics of one factor, one per component group (by default the
+    offset, 1 dof, and the tilt, 2 dof): its residual as the rest of the graph predicts it,
+    `d = R^-1 e`, over that prediction's covariance `R^-1`, with `R = I - A cov A^T` (`A`, `e`
+    and `cov` as for `redundancy`). Chi-square with the group's dimension when the factor fits,
+    however strongly it pulled the estimate toward itself. None where the rest of the graph
+    barely checks the factor (an eigenvalue of `R` below `min_redundancy`)."""
     R = np.eye(len(e)) - A @ cov @ A.T
     R = 0.5 * (R + R.T)
     if np.linalg.eigvalsh(R)[0] < min_redundancy:
         return None
-    return float(e @ np.linalg.solve(R, e))
+    P = np.linalg.inv(R)
+    d = P @ e
+    members = [np.flatnonzero(np.asarray(groups) == g) for g in range(max(groups) + 1)]
+    return np.array([d[i] @ np.linalg.solve(P[np.ix_(i, i)], d[i]) for i in members])
 
 
 def variance_factors(terms: list[tuple[np.ndarray, np.ndarray]], confidence: float,

@@ -118,12 +118,12 @@ class RobustAlignment:
         its landmark, toward the plan: its residual in the solved graph understates how far off
         it is built, and the walls sharing those poses take part of it (one at a time, then:
         Baarda's data snooping). The offset (1 dof) and the direction (2 dof) are tested apart
-        at `gnc_probability`: a wall built parallel to plan, off its line, is offset alone, which
+        at `studentized_probability`: a wall built parallel to plan, off its line, is offset alone, which
         a test over all three components would let pass further off; a direction-kept factor
         is tested on its direction."""
         from bimgraph.deviations.graph import joint_covariance
 
-        p = self.cfg.gnc_probability
+        p = self.cfg.studentized_probability
         thresholds = np.array([chi2.ppf(p, 1), chi2.ppf(p, 2)])
         marginals = gtsam.Marginals(graph, values)
         worst, worst_ratio = None, 1.0

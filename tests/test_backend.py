@@ -221,6 +221,27 @@ def test_a_plane_leaning_out_of_plumb_is_no_wall():
         plane = np.r_[n, -n @ centre]
         assert (len(bim.match([PlaneInB(0, plane, cov, extent, 6.0)])) == 1) is matched
 
+def test_a_match_leaning_out_of_plumb_is_revised():
+    """A matched landmark that leans 2.7 deg out of its face's plumb (a board on the wall) loses
+    the match; one leaning 2 deg (a wall built out of plumb) or turned 2.9 deg about the vertical
+    keeps it."""
+    from bimgraph.backend.online import revision_reason
+    from bimgraph.bim.planemap import BimFace, PlaneMap
+
+    cfg = BackendConfig().bim_association
+    poly = [(0.0, 0.0, 0.0), (4.0, 0.0, 0.0), (4.0, 0.0, 3.0), (0.0, 0.0, 3.0)]
+    faces = FaceIndex(PlaneMap(faces=[BimFace(id="a", wall_guid="a", normal=(0, 1, 0), offset=0.0, polygon=poly)]), cfg)
+    centre = np.array([2.0, 0.05, 1.5])
+
+    def reason(axis, deg):
+        n = gtsam.Rot3.Rodrigues(np.asarray(axis, dtype=float) * np.radians(deg)).matrix() @ np.array([0.0, 1.0, 0.0])
+        return revision_reason(np.r_[n, -n @ centre], faces, "a", cfg)
+
+    assert reason([1, 0, 0], 2.7).startswith("leaning")
+    assert reason([1, 0, 0], 2.0) is None
+    assert reason([0, 0, 1], 2.9) is None
+
+
 def test_align_from_seeds(cfg):
     rng = np.random.default_rng(4)
     T_B_S = exp_se3(np.r_[rng.normal(size=3) * 0.3, rng.normal(size=3) * 2])

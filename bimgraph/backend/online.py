@@ -44,6 +44,10 @@ def revision_reason(plane_B: np.ndarray, faces: FaceIndex, face: str, cfg) -> st
     angle, offset = misfit(plane_B, faces.planes[row], faces.centres[row])
     if angle > cfg.revision_normal_deg:
         return f"normal {angle:.1f} deg off"
+    # the normals' elevations: how far the plane leans out of the face's plumb (or level)
+    plumb = float(np.degrees(abs(np.arcsin(np.clip(plane_B[2], -1.0, 1.0)) - np.arcsin(np.clip(faces.planes[row, 2], -1.0, 1.0)))))
+    if plumb > cfg.revision_plumb_deg:
+        return f"leaning {plumb:.1f} deg out of plumb"
     if offset > cfg.revision_offset_m:
         return f"offset {offset:.3f} m off"
     return None

@@ -31,8 +31,7 @@ from bimgraph.backend.associate_bim import PlaneInB, plane_in_B
 from bimgraph.backend.graph import E, L, X, cov_T_B_S, pose3
 from bimgraph.backend.landmarks import KEPT, Landmark, transform_points
 from bimgraph.backend.odometry import OdometryModel
-from bimgraph.backend.associate_slam import same_plane_d2
-from bimgraph.backend.online import Backend, Oracle, misfit, observations_of, revision_reason, unmatch
+from bimgraph.backend.online import Backend, Oracle, face_misfit, observations_of, one_plane, revision_reason, unmatch
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
 from bimgraph.backend.robust_alignment import RobustAlignment
 from bimgraph.bim.planemap import PlaneMap
@@ -188,6 +187,8 @@ class OfflineEstimator:
         they pass `offline.merge_gate` as one plane. Two that do not are not both that wall (a board
         leaning on it, a cabinet's front): the one farther from the face loses the match and
         stays apart from it. (Coplanar sections of a wall stay apart: built, they may differ.)"""
+        from bimgraph.deviations.graph import joint_covariance
+
         by_face: dict[str, list] = {}
         for lm in self._active():
             if lm.face is not None:
@@ -197,29 +198,15 @@ class OfflineEstimator:
             keep = min(same, key=lambda lm: (lm.anchor, lm.id))
             for other in (lm for lm in same if lm is not keep):
                 changed = True
-                if self._one_plane(keep, other, marginals):
+                if one_plane(keep, other, functools.partial(joint_covariance, marginals), self.cfg.offline.merge_gate):
                     keep.absorb(other, self.cfg.slam_association.extent_max_points)
                     values.erase(L(other.id))
                     continue
-                worse = max((keep, other), key=lambda lm: self._face_misfit(lm, values.atPose3(E)))
+                worse = max((keep, other), key=lambda lm: face_misfit(lm, face, self.faces, values.atPose3(E), self.cfg.bim_association))
                 self.apart.add((worse.id, face))
                 unmatch(worse, "not one plane with another landmark of its face", self.listener)
                 break  # the face's other landmarks meet the one left next round
         return changed
-
-    def _one_plane(self, a: Landmark, b: Landmark, marginals: gtsam.Marginals) -> bool:
-        keys = [X(a.anchor)] + ([X(b.anchor)] if b.anchor != a.anchor else []) + [L(b.id), L(a.id)]
-        joint = marginals.jointMarginalCovariance(keys)
-        cov = np.block([[joint.at(i, j) for j in keys] for i in keys])
-        return same_plane_d2(a.plane_A, a.T_S_A, b.plane_A, b.T_S_A, cov) <= self.cfg.offline.merge_gate
-
-    def _face_misfit(self, lm: Landmark, T_S_B: gtsam.Pose3) -> float:
-        """How far the landmark is from its face, in units of the as-built tolerance."""
-        plane_B = predict_local_plane(T_S_B, pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A))
-        row = self.faces.row[lm.face]
-        angle, offset = misfit(plane_B, self.faces.planes[row], self.faces.centres[row])
-        cfg = self.cfg.bim_association
-        return (angle / cfg.face_normal_deg) ** 2 + (offset / cfg.face_offset_m) ** 2
 
     def _observed_planes(self, values, marginals) -> list:
         """Every active landmark as the deviation step reads it; a matched landmark's plane-to-BIM

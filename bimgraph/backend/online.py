@@ -4,14 +4,14 @@ triggers, emitting the causal `T_B_C` and `T_B_S` (with covariance) after every 
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 import gtsam
 import numpy as np
 
 from bimgraph.backend.alignment import Alignment, levelled, lock_directions, unlocked_covariance, unobservable_directions
-from bimgraph.backend.associate_bim import BimAssociator, FaceIndex, PlaneInB, plane_in_B
-from bimgraph.backend.associate_slam import Observation, SlamAssociator
+from bimgraph.backend.associate_bim import BimAssociator, FaceIndex, FaceMatch, PlaneInB, plane_in_B
+from bimgraph.backend.associate_slam import Observation, SlamAssociator, same_plane_d2
 from bimgraph.backend import drift
 from bimgraph.backend.graph import E, L, X, IncrementalGraph, cov_T_B_S
 from bimgraph.backend.landmarks import Landmark, LandmarkTable, observation_points, transform_points
@@ -36,6 +36,21 @@ def misfit(plane_B: np.ndarray, face_plane: np.ndarray, centre_B: np.ndarray) ->
     centre from the plane)."""
     angle = float(np.degrees(np.arccos(np.clip(plane_B[:3] @ face_plane[:3], -1.0, 1.0))))
     return angle, abs(float(plane_B[:3] @ centre_B + plane_B[3]))
+
+
+def face_misfit(lm: Landmark, face: str, faces: FaceIndex, T_S_B: gtsam.Pose3, cfg) -> float:
+    """How far the landmark is from `face`, in units of the gate's as-built tolerance."""
+    plane_B = predict_local_plane(T_S_B, gtsam.Pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A))
+    row = faces.row[face]
+    angle, offset = misfit(plane_B, faces.planes[row], faces.centres[row])
+    return (angle / cfg.face_normal_deg) ** 2 + (offset / cfg.face_offset_m) ** 2
+
+
+def one_plane(a: Landmark, b: Landmark, joint: Callable[[list[int]], np.ndarray], gate: float) -> bool:
+    """Whether two landmarks pass `gate` as one plane (`same_plane_d2`), with `joint(keys)` the
+    joint marginal covariance of keys in the order given."""
+    keys = [X(a.anchor)] + ([X(b.anchor)] if b.anchor != a.anchor else []) + [L(b.id), L(a.id)]
+    return same_plane_d2(a.plane_A, a.T_S_A, b.plane_A, b.T_S_A, joint(keys)) <= gate
 
 
 def revision_reason(plane_B: np.ndarray, faces: FaceIndex, face: str, cfg) -> str | None:
@@ -278,10 +293,24 @@ class Backend:
             joint = self.graph.joint([E, X(lm.anchor), L(j)])
             plane_B, cov_B = plane_in_B(T_S_B, gtsam.Pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A), joint)
             candidates.append(PlaneInB(j, plane_B, cov_B, lm.extent_in(T_B_S), lm.area))
-        matches = self.bim.match(candidates)
-        for m in matches:
-            self._set_face(m.landmark, m.face, m.score)
-        return bool(matches)
+        changed = False
+        for m in self.bim.match(candidates):
+            changed |= self._claim(m, T_S_B)
+        return changed
+
+    def _claim(self, m: FaceMatch, T_S_B: gtsam.Pose3) -> bool:
+        """Match landmark and face, unless the face has another landmark that is not one plane
+        with this one (a cabinet's front before the wall it stands at): then the one farther
+        from the face goes without, as offline merging decides. Whether a match changed."""
+        lm = self.landmarks[m.landmark]
+        rival = next((other for other in self.landmarks.items if other.face == m.face and other.id != lm.id), None)
+        if rival is not None and not one_plane(rival, lm, self.graph.joint, self.cfg.offline.merge_gate):
+            worse = max((rival, lm), key=lambda x: face_misfit(x, m.face, self.faces, T_S_B, self.cfg.bim_association))
+            if worse is lm:
+                return False
+            self._unmatch(rival, "not one plane with another landmark of its face")
+        self._set_face(m.landmark, m.face, m.score)
+        return True
 
 
 def unmatch(lm: Landmark, reason: str, listener: Listener) -> None:

@@ -60,7 +60,8 @@ def revision_reason(plane_B: np.ndarray, faces: FaceIndex, face: str, cfg) -> st
     if angle > cfg.revision_normal_deg:
         return f"normal {angle:.1f} deg off"
     # the normals' elevations: how far the plane leans out of the face's plumb (or level)
-    plumb = float(np.degrees(abs(np.arcsin(np.clip(plane_B[2], -1.0, 1.0)) - np.arcsin(np.clip(faces.planes[row, 2], -1.0, 1.0)))))
+    elevation = np.arcsin(np.clip([plane_B[2], faces.planes[row, 2]], -1.0, 1.0))
+    plumb = float(np.degrees(abs(elevation[0] - elevation[1])))
     if plumb > cfg.revision_plumb_deg:
         return f"leaning {plumb:.1f} deg out of plumb"
     if offset > cfg.revision_offset_m:

@@ -38,8 +38,9 @@ def transform_points(T_A_B: np.ndarray, points_B: np.ndarray) -> np.ndarray:
 
 
 # How the alignment uses a matched landmark's plane-to-BIM factor: kept whole; the wall's
-# direction kept and its offset left to the observations; or out of the alignment. Offline GNC
-# decides (a wall found off plan is measured, not followed); online every match is kept.
+# direction kept and its offset left to the observations; or out of the alignment. Offline the
+# robust alignment decides (`bimgraph.backend.robust_alignment`: a wall found off plan is
+# measured, not followed); online every match is kept.
 KEPT, DIRECTION, OUT = "kept", "direction", "out"
 
 

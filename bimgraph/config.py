@@ -275,7 +275,7 @@ class BimAssociationConfig(Section):
 
     gate_probability: float = Field(0.999, gt=0, lt=1, description="chi-square gate (3 dof) on the Mahalanobis distance in B with the joint marginal of landmark, anchor and extrinsic")
     face_normal_deg: float = Field(1.5, gt=0, description="as-built tolerance added to the gate covariance: normal, turned about the vertical...")
-    face_plumb_deg: float = Field(0.5, gt=0, description="...and leaning out of plumb (the normal turning toward the vertical): walls stand far more nearly plumb than on their line, while a board leaning on a wall is off by degrees")
+    face_plumb_deg: float = Field(0.5, gt=0, description="...and leaning out of plumb (the normal turning toward the vertical; a level face, a slab, has this tilt alone): walls stand far more nearly plumb than on their line, while a board leaning on a wall is off by degrees")
     face_offset_m: float = Field(0.05, gt=0, description="...and offset")
     max_normal_angle_deg: float = Field(20.0, gt=0, le=90, description="faces whose normals differ more than this are not scored")
     min_observations: int = Field(3, ge=1, description="a landmark is matched only once observed this many times")
@@ -288,7 +288,7 @@ class BimAssociationConfig(Section):
     coplanar_offset_m: float = Field(0.01, gt=0, description="...and in offset are one plane (sections of one wall), matched as a group")
     ambiguity_margin: float = Field(9.0, ge=0, description="a match is deferred while a second face scores within this many chi-square units of the best")
     revision_normal_deg: float = Field(3.0, gt=0, description="an associated landmark whose normal strays more than this from its face (in B, current estimate) is unmatched")
-    revision_plumb_deg: float = Field(2.5, gt=0, description="...or whose normal leans more than this further out of plumb than its face's: a board leaning on the wall it hides, not the wall built out of plumb (2.5 deg is 11 cm over a 2.5 m storey)")
+    revision_plumb_deg: float = Field(2.5, gt=0, description="...or whose normal leans more than this further out of plumb than its face's (a face nearer vertical than level): a board leaning on the wall it hides, not the wall built out of plumb (2.5 deg is 11 cm over a 2.5 m storey)")
     revision_offset_m: float = Field(0.25, gt=0, description="an associated landmark whose offset strays more than this from its face is unmatched")
 
 

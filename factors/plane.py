@@ -116,20 +116,20 @@ def face_tolerance_cov(basis: np.ndarray, centre: np.ndarray | None, sigma_norma
     independently (`face_tolerance_coordinates`). A face far from B's origin so gets a large,
     correlated `e_3` variance, not the origin's `sigma_offset_m`, which would let its tilt
     stand for metres of offset at the face. With `sigma_plumb_rad`, the tilt out of plumb (the
-    normal turning toward B's z) has that sigma and `sigma_normal_rad` is left to the turn about
-    the vertical; a level face (normal along z) has only tilt out of level, `sigma_plumb_rad`."""
+    normal turning toward B's z) has that sigma, and `sigma_normal_rad` is left to the turn
+    about the vertical, blended toward `sigma_plumb_rad` as the face tilts toward level (by the
+    squared sine of its inclination): a level face has tilt out of level alone."""
     basis = np.asarray(basis, dtype=float)
     cov_tilt = sigma_normal_rad**2 * np.eye(2)
     if sigma_plumb_rad is not None:
         n = np.cross(basis[:, 0], basis[:, 1])
-        h = np.cross([0.0, 0.0, 1.0], n)
-        if np.linalg.norm(h) < 1e-6:
-            cov_tilt = sigma_plumb_rad**2 * np.eye(2)
-        else:
-            h /= np.linalg.norm(h)
-            v = np.cross(n, h)
-            cov_n = sigma_normal_rad**2 * np.outer(h, h) + sigma_plumb_rad**2 * np.outer(v, v)
-            cov_tilt = basis.T @ cov_n @ basis
+        h = np.cross([0.0, 0.0, 1.0], n)  # the horizontal direction in the face
+        inclined = float(h @ h)  # sin^2 of the face's inclination from level
+        cov_tilt = sigma_plumb_rad**2 * np.eye(2)
+        if inclined > 1e-12:
+            h /= np.sqrt(inclined)
+            turn = sigma_normal_rad**2 * inclined + sigma_plumb_rad**2 * (1.0 - inclined)
+            cov_tilt += (turn - sigma_plumb_rad**2) * np.outer(basis.T @ h, basis.T @ h)
     M_inv = np.linalg.inv(face_tolerance_coordinates(basis, centre))
     cov = np.zeros((3, 3))
     cov[0, 0] = sigma_offset_m**2

@@ -201,45 +201,48 @@ def test_ambiguous_faces_wait_for_the_extent():
     assert [m.face for m in bim.match([PlaneInB(0, plane, cov, extent, 5.0)])] == ["b"]
 
 
+def _one_wall(cfg):
+    """One wall face (y = 0, normal +y, 4 m by 3 m) and a plane 5 cm before its centre turned
+    by `deg` about `axis` (the plane, as a function)."""
+    from bimgraph.bim.planemap import BimFace, PlaneMap
+
+    poly = [(0.0, 0.0, 0.0), (4.0, 0.0, 0.0), (4.0, 0.0, 3.0), (0.0, 0.0, 3.0)]
+    faces = FaceIndex(PlaneMap(faces=[BimFace(id="a", wall_guid="a", normal=(0, 1, 0), offset=0.0, polygon=poly)]), cfg)
+    centre = np.array([2.0, 0.05, 1.5])
+
+    def turned(axis, deg):
+        n = gtsam.Rot3.Rodrigues(np.asarray(axis, dtype=float) * np.radians(deg)).matrix() @ np.array([0.0, 1.0, 0.0])
+        return np.r_[n, -n @ centre]
+
+    return faces, turned
+
+
 def test_a_plane_leaning_out_of_plumb_is_no_wall():
     """The gate's as-built tolerance: a plane turned 3 degrees about the vertical, 5 cm off,
     may be its wall (built off its line, or the extrinsic's heading); one leaning 3 degrees out
     of plumb about its centre line (a board on the wall) is not."""
     from bimgraph.backend.associate_bim import PlaneInB
-    from bimgraph.bim.planemap import BimFace, PlaneMap
 
     cfg = BackendConfig().bim_association
-    poly = [(0.0, 0.0, 0.0), (4.0, 0.0, 0.0), (4.0, 0.0, 3.0), (0.0, 0.0, 3.0)]
-    bim = BimAssociator(FaceIndex(PlaneMap(faces=[BimFace(id="a", wall_guid="a", normal=(0, 1, 0), offset=0.0,
-                                                               polygon=poly)]), cfg), cfg)
-    centre = np.array([2.0, 0.05, 1.5])
+    faces, turned = _one_wall(cfg)
+    bim = BimAssociator(faces, cfg)
     extent = np.array([[0.5, 0.05, 0.5], [3.5, 0.05, 0.5], [3.5, 0.05, 2.5], [0.5, 0.05, 2.5]])
     cov = np.diag([1e-6, 1e-6, 1e-6, 1e-6])
-    angle = np.radians(3.0)
     for axis, matched in (([0, 0, 1], True), ([1, 0, 0], False)):
-        n = gtsam.Rot3.Rodrigues(np.asarray(axis, dtype=float) * angle).matrix() @ np.array([0.0, 1.0, 0.0])
-        plane = np.r_[n, -n @ centre]
-        assert (len(bim.match([PlaneInB(0, plane, cov, extent, 6.0)])) == 1) is matched
+        assert (len(bim.match([PlaneInB(0, turned(axis, 3.0), cov, extent, 6.0)])) == 1) is matched
+
 
 def test_a_match_leaning_out_of_plumb_is_revised():
     """A matched landmark that leans 2.7 deg out of its face's plumb (a board on the wall) loses
     the match; one leaning 2 deg (a wall built out of plumb) or turned 2.9 deg about the vertical
     keeps it."""
     from bimgraph.backend.online import revision_reason
-    from bimgraph.bim.planemap import BimFace, PlaneMap
 
     cfg = BackendConfig().bim_association
-    poly = [(0.0, 0.0, 0.0), (4.0, 0.0, 0.0), (4.0, 0.0, 3.0), (0.0, 0.0, 3.0)]
-    faces = FaceIndex(PlaneMap(faces=[BimFace(id="a", wall_guid="a", normal=(0, 1, 0), offset=0.0, polygon=poly)]), cfg)
-    centre = np.array([2.0, 0.05, 1.5])
-
-    def reason(axis, deg):
-        n = gtsam.Rot3.Rodrigues(np.asarray(axis, dtype=float) * np.radians(deg)).matrix() @ np.array([0.0, 1.0, 0.0])
-        return revision_reason(np.r_[n, -n @ centre], faces, "a", cfg)
-
-    assert reason([1, 0, 0], 2.7).startswith("leaning")
-    assert reason([1, 0, 0], 2.0) is None
-    assert reason([0, 0, 1], 2.9) is None
+    faces, turned = _one_wall(cfg)
+    assert revision_reason(turned([1, 0, 0], 2.7), faces, "a", cfg).startswith("leaning")
+    assert revision_reason(turned([1, 0, 0], 2.0), faces, "a", cfg) is None
+    assert revision_reason(turned([0, 0, 1], 2.9), faces, "a", cfg) is None
 
 
 def test_align_from_seeds(cfg):
@@ -348,7 +351,9 @@ def test_online_keeps_a_cabinet_front_apart_from_the_wall_behind_it(cfg, seed):
     """A cabinet's front 15 cm before wall r00E, parallel, passes the gate's 5 cm offset
     tolerance once the wall's own landmark is matched; online, the face then has two landmarks
     that are not one plane, and the one farther from it goes without (as offline merging
-    decides)."""
+    decides). The test is only as strong as the two landmarks' joint covariance when the front
+    is matched: with scene seed 2 the young front still passes `offline.merge_gate` as one plane
+    with the wall (7 of seeds 0-7 keep it apart)."""
     scene, hidden = _scene_with_a_board(seed, foot=0.15, top=0.15)
     faces = run_online(scene.keyframes, scene.plane_map, cfg, scene.initial).associations()
     assert not any(faces.get(obs) == "r00E" for obs in hidden)

@@ -184,7 +184,9 @@ def test_offline_judges_each_wall_against_the_others(monkeypatch):
     """A wall built 5 cm off, seen early: the poses that see it follow it, so its residual in
     the solved graph passes GNC's test and the alignment keeps it whole. Measured against the
     rest of the graph, with its own pull taken out (`offline.studentized`), it fails: its
-    offset leaves the alignment, and the poses come back."""
+    offset leaves the alignment, and the poses come back. (A chosen case: at 4 or 6 cm, or with
+    scene seed 3, both judgements agree; with seed 2 the wall is demoted but the ATE is no
+    lower.)"""
     monkeypatch.setitem(MOVED, "r00E", 0.05)
     scene = make_scene(160, rooms=(2, 1), seed=1, drift_rot_deg=0.01, drift_trans_m=0.001)
     plan = moved_plan(scene.plane_map)

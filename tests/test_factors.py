@@ -222,3 +222,32 @@ def test_face_tolerance_is_about_the_face_centre(seed):
     horizontal = np.cross([0.0, 0.0, 1.0], n)
     assert score(cov, gtsam.Rot3.Rz(0.01).matrix()) == pytest.approx(1.0, rel=0.01)
     assert score(cov, gtsam.Rot3.Rodrigues(0.002 * horizontal).matrix()) == pytest.approx(1.0, rel=0.01)
+
+
+@pytest.mark.parametrize("inclination_deg", [0.0, 45.0])
+def test_face_tolerance_of_level_and_inclined_faces(inclination_deg):
+    """With a plumb tolerance: a level face (a slab) tilts out of level by that sigma whichever
+    way; a face inclined 45 deg turns about the vertical by the mean of the two variances."""
+    from factors import face_tolerance_cov
+
+    incl = np.radians(inclination_deg)
+    n = np.array([np.sin(incl), 0.0, np.cos(incl)])
+    centre = np.array([2.0, -3.0, 1.0])
+    basis = gtsam.Unit3(n).basis()
+    cov = face_tolerance_cov(basis, centre, 0.01, 0.02, 0.002)
+
+    def score(rotation):
+        built_n = rotation @ n
+        e = np.r_[basis.T @ built_n, -n @ centre + built_n @ centre]
+        return e @ np.linalg.solve(cov, e)
+
+    if inclination_deg == 0.0:
+        for axis in ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0]):
+            axis = np.asarray(axis) / np.linalg.norm(axis)
+            assert score(gtsam.Rot3.Rodrigues(0.002 * axis).matrix()) == pytest.approx(1.0, rel=0.01)
+    else:
+        turn = np.sqrt(0.5 * 0.01**2 + 0.5 * 0.002**2)  # the blended sigma of the turn about z
+        # turning about z by a moves the normal by a sin(incl) along the horizontal direction
+        assert score(gtsam.Rot3.Rz(turn / np.sin(incl)).matrix()) == pytest.approx(1.0, rel=0.02)
+        horizontal = np.cross([0.0, 0.0, 1.0], n) / np.sin(incl)
+        assert score(gtsam.Rot3.Rodrigues(0.002 * horizontal).matrix()) == pytest.approx(1.0, rel=0.01)

@@ -45,7 +45,6 @@ class OfflineEstimator:
     def __init__(self, plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,
                  listener: Listener | None = None, oracle: Oracle | None = None):
         self.cfg = cfg
-        self.apart: set[tuple[int, str]] = set()  # (landmark, face) pairs merging found not one plane
         self.listener = listener or Listener()
         # the causal pass reports nothing (the listener hears the smoothed results) and leaves
         # the drift to the rounds
@@ -203,7 +202,7 @@ class OfflineEstimator:
                     values.erase(L(other.id))
                     continue
                 worse = max((keep, other), key=lambda lm: face_misfit(lm, face, self.faces, values.atPose3(E), self.cfg.bim_association))
-                self.apart.add((worse.id, face))
+                self.online.apart.add((worse.id, face))
                 unmatch(worse, "not one plane with another landmark of its face", self.listener)
                 break  # the face's other landmarks meet the one left next round
         return changed
@@ -276,7 +275,7 @@ class OfflineEstimator:
             plane_B, cov_B = plane_in_B(T_S_B, pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A), cov)
             candidates.append(PlaneInB(lm.id, plane_B, cov_B, lm.extent_in(T_B_S), lm.area))
         # a face merging took a landmark off would only pull it back: it stays apart
-        matches = [m for m in self.bim.match(candidates) if (m.landmark, m.face) not in self.apart]
+        matches = [m for m in self.bim.match(candidates) if (m.landmark, m.face) not in self.online.apart]
         for m in matches:
             lm = self.landmarks[m.landmark]
             lm.face, lm.score = m.face, m.score

@@ -59,10 +59,11 @@ def revision_reason(plane_B: np.ndarray, faces: FaceIndex, face: str, cfg) -> st
     angle, offset = misfit(plane_B, faces.planes[row], faces.centres[row])
     if angle > cfg.revision_normal_deg:
         return f"normal {angle:.1f} deg off"
-    # the normals' elevations: how far the plane leans out of the face's plumb (or level)
+    # the normals' elevations: how far the plane leans out of the plumb of a wall-like face
+    # (a slab's tilt is its whole normal angle, judged above)
     elevation = np.arcsin(np.clip([plane_B[2], faces.planes[row, 2]], -1.0, 1.0))
     plumb = float(np.degrees(abs(elevation[0] - elevation[1])))
-    if plumb > cfg.revision_plumb_deg:
+    if abs(elevation[1]) < np.pi / 4 and plumb > cfg.revision_plumb_deg:
         return f"leaning {plumb:.1f} deg out of plumb"
     if offset > cfg.revision_offset_m:
         return f"offset {offset:.3f} m off"
@@ -96,6 +97,9 @@ class Backend:
         self.graph = IncrementalGraph(cfg, self.prior.T_B_S, self.prior.cov)
         self.build = self.graph.build
         self.landmarks = LandmarkTable()
+        # (landmark, face) pairs found not one plane with another landmark of the face: the one
+        # farther from it stays apart from it (online here, offline when merging)
+        self.apart: set[tuple[int, str]] = set()
         self.listener = listener or Listener()
         self.oracle = oracle
         self._landmark_of_face: dict[str, int] = {}
@@ -296,17 +300,21 @@ class Backend:
             candidates.append(PlaneInB(j, plane_B, cov_B, lm.extent_in(T_B_S), lm.area))
         changed = False
         for m in self.bim.match(candidates):
-            changed |= self._claim(m, T_S_B)
+            if (m.landmark, m.face) not in self.apart:
+                changed |= self._claim(m, T_S_B)
         return changed
 
     def _claim(self, m: FaceMatch, T_S_B: gtsam.Pose3) -> bool:
-        """Match landmark and face, unless the face has another landmark that is not one plane
-        with this one (a cabinet's front before the wall it stands at): then the one farther
-        from the face goes without, as offline merging decides. Whether a match changed."""
+        """Match landmark and face, unless the face has other landmarks that are not one plane
+        with this one (a cabinet's front before the wall it stands at): then of each such pair
+        the one farther from the face goes without and stays apart from it, as offline merging
+        decides. Whether a match changed."""
         lm = self.landmarks[m.landmark]
-        rival = next((other for other in self.landmarks.items if other.face == m.face and other.id != lm.id), None)
-        if rival is not None and not one_plane(rival, lm, self.graph.joint, self.cfg.offline.merge_gate):
+        for rival in [other for other in self.landmarks.items if other.face == m.face and other.id != lm.id]:
+            if one_plane(rival, lm, self.graph.joint, self.cfg.offline.merge_gate):
+                continue
             worse = max((rival, lm), key=lambda x: face_misfit(x, m.face, self.faces, T_S_B, self.cfg.bim_association))
+            self.apart.add((worse.id, m.face))
             if worse is lm:
                 return False
             self._unmatch(rival, "not one plane with another landmark of its face")

@@ -46,7 +46,7 @@ class RobustAlignment:
         return self.build.bim(lm.anchor, lm.id, self.faces.planes[row], self.faces.centres[row], weight, tolerance)
 
     def judged_factor(self, lm: Landmark) -> gtsam.NonlinearFactor | None:
-        """The factor as GNC judged it, under the robust kernel (also before it judged)."""
+        """The factor as the alignment judged it, under the robust kernel (also before it judged)."""
         return self.factor(lm, None, self.verdicts.get((lm.id, lm.face), KEPT))
 
     def decide(self, matches: list[tuple[int, str]], graph_with: GraphWith, values: gtsam.Values) -> gtsam.Values:
@@ -105,41 +105,46 @@ class RobustAlignment:
                 break
             self.tolerance = estimated
             _, self.verdicts, values, graph = judged(values)
-        while cfg.studentized and (pair := self._worst_studentized(graph, values)) is not None:
-            self.verdicts[pair] = DIRECTION if self.verdicts[pair] == KEPT else OUT
+        while cfg.studentized and (demoted := self._worst_studentized(graph, values)) is not None:
+            pair, verdict = demoted
+            self.verdicts[pair] = verdict
             graph = graph_with(lambda lm: self.factor(lm, 1.0, self.verdicts[lm.id, lm.face]))
             values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
         return values
 
-    def _worst_studentized(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[int, str] | None:
+    def _worst_studentized(self, graph: gtsam.NonlinearFactorGraph,
+                           values: gtsam.Values) -> tuple[tuple[int, str], str] | None:
         """The plane-to-BIM factor of `graph` (Gaussian, solved at `values`) that fails its
-        tests worst when measured against the rest of the graph (`tolerance.studentized`), or
-        None if every one passes. A wall few others check pulls the poses that see it, and so
-        its landmark, toward the plan: its residual in the solved graph understates how far off
-        it is built, and the walls sharing those poses take part of it (one at a time, then:
+        tests worst when measured against the rest of the graph (`tolerance.studentized`), with
+        the verdict it fails to (`DIRECTION` if only its offset fails, else `OUT`), or None if
+        every one passes. A wall few others check pulls the poses that see it, and so its
+        landmark, toward the plan: its residual in the solved graph understates how far off it
+        is built, and the walls sharing those poses take part of it (one at a time, then:
         Baarda's data snooping). The offset (1 dof) and the direction (2 dof) are tested apart
-        at `studentized_probability`: a wall built parallel to plan, off its line, is offset alone, which
-        a test over all three components would let pass further off; a direction-kept factor
-        is tested on its direction."""
+        at `studentized_probability`: a wall built parallel to plan, off its line, is offset
+        alone, which a test over all three components would let pass further off. Where the
+        rest of the graph does not check a factor's offset, or the offset is left free, its
+        direction alone is tested."""
         from bimgraph.deviations.graph import joint_covariance
 
         p = self.cfg.studentized_probability
-        thresholds = np.array([chi2.ppf(p, 1), chi2.ppf(p, 2)])
+        c2_offset, c2_direction = chi2.ppf(p, 1), chi2.ppf(p, 2)
         marginals = gtsam.Marginals(graph, values)
         worst, worst_ratio = None, 1.0
-        for (j, face), verdict in self.verdicts.items():
+        for pair, verdict in self.verdicts.items():
             if verdict == OUT:
                 continue
+            j, face = pair
             A, e = self._deviation_residual(j, face, values)
             cov = joint_covariance(marginals, [E, X(self.landmarks[j].anchor), L(j)])
-            if verdict == KEPT:
-                t = tolerance.studentized(A, e, cov)
-                ratio = 0.0 if t is None else float(np.max(t / thresholds))
+            both = tolerance.studentized(A, e, cov) if verdict == KEPT else None
+            if both is not None:
+                offset, direction = both[0] / c2_offset, both[1] / c2_direction
             else:
                 t = tolerance.studentized(A[1:], e[1:], cov, groups=(0, 0))
-                ratio = 0.0 if t is None else float(t[0] / thresholds[1])
-            if ratio > worst_ratio:
-                worst, worst_ratio = (j, face), ratio
+                offset, direction = 0.0, (0.0 if t is None else float(t[0]) / c2_direction)
+            if max(offset, direction) > worst_ratio:
+                worst, worst_ratio = (pair, OUT if direction > 1.0 else DIRECTION), max(offset, direction)
         return worst
 
     def _deviation_residual(self, j: int, face: str, values: gtsam.Values) -> tuple[np.ndarray, np.ndarray]:

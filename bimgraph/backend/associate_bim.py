@@ -90,6 +90,10 @@ class FaceIndex:
     def to_2d(self, i: int, points: np.ndarray) -> np.ndarray:
         return (points + self.planes[i, 3] * self.planes[i, :3]) @ self.bases[i]
 
+    def has_sections(self, face: str) -> bool:
+        """Whether the face is one of several coplanar sections (of a wall spanning rooms)."""
+        return len(self.members[self.group[self.row[face]]]) > 1
+
     def member_at(self, group: int, point_B: np.ndarray) -> str:
         """The face of the group nearest to a point on it."""
         members = self.members[group]

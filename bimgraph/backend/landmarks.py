@@ -58,6 +58,8 @@ class Landmark:
     score: float = float("nan")
     rejected: set[str] = field(default_factory=set)  # faces it was matched to and unmatched from
     hull_A: object = None  # the extent as a shapely geometry in the plane's 2-D frame (when grown)
+    sphere_A: np.ndarray | None = None  # the extent's centre in A (when grown)...
+    radius: float = float("inf")  # ...and the radius of a sphere about it holding the extent
     centres_A: list = field(default_factory=list)  # per observation, its centre in A (or None)
     observation_faces: list | None = None  # per observation, the face behind it, once resolved
     bim_attempt: int = 0  # observation count when last scored against the BIM faces
@@ -112,6 +114,9 @@ class Landmark:
             self.area = max(self.area, area or 0.0)
         self.extent_A = from_plane_2d(coords, self.plane_A)
         self.hull_A = hull
+        # its bounding sphere, which association moves into S with every new estimate
+        self.sphere_A = self.extent_A.mean(axis=0)
+        self.radius = float(np.sqrt(((self.extent_A - self.sphere_A) ** 2).sum(axis=1).max()))
 
     def extent_in(self, T_X_S: np.ndarray) -> np.ndarray:
         """The extent's points in frame X, given T_X_S."""
@@ -164,10 +169,9 @@ class LandmarkTable:
 
     def update_sphere(self, j: int) -> None:
         lm = self.items[j]
-        if len(lm.extent_A):
-            points_S = transform_points(lm.T_S_A, lm.extent_A)
-            self.centres_S[j] = points_S.mean(axis=0)
-            self.radii[j] = np.linalg.norm(points_S - self.centres_S[j], axis=1).max()
+        if lm.sphere_A is not None:
+            self.centres_S[j] = lm.T_S_A[:3, :3] @ lm.sphere_A + lm.T_S_A[:3, 3]
+            self.radii[j] = lm.radius
 
 
 def observation_points(polygon, centre) -> np.ndarray:

@@ -148,7 +148,7 @@ class Backend:
         """The face behind landmark j's latest observation (a member of its matched group)."""
         lm = self.landmarks[j]
         centre_A = lm.centres_A[-1]
-        if lm.face is None or centre_A is None:
+        if lm.face is None or centre_A is None or not self.faces.has_sections(lm.face):
             return lm.face
         centre_B = transform_points(T_B_S @ lm.T_S_A, centre_A[None])[0]
         return self.faces.observation_faces(lm.face, [centre_B])[0]
@@ -175,8 +175,9 @@ class Backend:
             self.graph.add(self.build.first_pose(kf.index, guess))
         else:
             previous, T_S_Cprev = self._previous
-            self.graph.add_odometry(kf.index, self.odometry.factor(previous, kf))
-            guess = T_S_Cprev @ self.odometry.step(previous, kf)
+            odometry = self.odometry.factor(previous, kf)
+            self.graph.add_odometry(kf.index, odometry)
+            guess = T_S_Cprev @ odometry.measured().matrix()
             if self.gravity_aligned:  # (the first pose's prior holds its tilt already)
                 self.graph.add(self.build.gravity(kf.index, self.odometry.pose(kf)))
         self.graph.insert_pose(kf.index, guess)

@@ -201,6 +201,23 @@ def test_ambiguous_faces_wait_for_the_extent():
     assert [m.face for m in bim.match([PlaneInB(0, plane, cov, extent, 5.0)])] == ["b"]
 
 
+def test_a_wall_seen_whole_matches_its_face_around_a_door():
+    """A door at the foot of a wall is a notch in its face's outline; the landmark of the
+    wall seen whole spans the doorway, and its centre lies in it (site 1's 3 m wall with a
+    door in the middle: matched once the filters take each face's convex hull)."""
+    from bimgraph.backend.associate_bim import PlaneInB
+    from bimgraph.bim.planemap import BimFace, PlaneMap
+
+    cfg = BackendConfig().bim_association
+    u_shape = [(0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (1.0, 0.0, 2.1), (2.0, 0.0, 2.1), (2.0, 0.0, 0.0),
+               (3.0, 0.0, 0.0), (3.0, 0.0, 3.2), (0.0, 0.0, 3.2)]
+    faces = FaceIndex(PlaneMap(faces=[BimFace(id="a", wall_guid="a", normal=(0, 1, 0), offset=0.0, polygon=u_shape)]), cfg)
+    extent = np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0], [3.0, 0.0, 3.2], [0.0, 0.0, 3.2]])
+    plane = np.array([0.0, 1.0, 0.0, 0.0])
+    matches = BimAssociator(faces, cfg).match([PlaneInB(0, plane, np.diag([1e-6] * 4), extent, 9.6)])
+    assert [m.face for m in matches] == ["a"]
+
+
 def _one_wall(cfg):
     """One wall face (y = 0, normal +y, 4 m by 3 m) and a plane 5 cm before its centre turned
     by `deg` about `axis` (the plane, as a function)."""

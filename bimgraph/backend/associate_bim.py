@@ -77,10 +77,12 @@ class FaceIndex:
                 self.group[same] = len(self.members)
                 self.members.append(same)
         self.rep = np.array([m[0] for m in self.members], dtype=int)
-        # outer boundaries (an observed extent covers doors and windows) in the frame of the
-        # group's first face
+        # outer boundaries in the frame of the group's first face; for the geometric filters
+        # each face's convex hull, since an observed extent is one, over doors and windows
+        # alike (a door at a face's edge is a notch in its outline, not a hole: the hull of a
+        # wall seen whole centres in the doorway)
         self.outline = [Polygon(self.to_2d(self.rep[self.group[i]], np.asarray(f.polygon))) for i, f in enumerate(self.faces)]
-        self.group_outline = [shapely.union_all([self.outline[i] for i in m]) for m in self.members]
+        self.group_outline = [shapely.union_all([self.outline[i].convex_hull for i in m]) for m in self.members]
         for poly in self.group_outline:
             shapely.prepare(poly)
 

@@ -7,9 +7,9 @@ Levenberg-Marquardt smooths it, the front-end's systematic drift is measured fro
 poses and taken out of its odometry (and its noise tightened to what the smoothed steps show:
 `bimgraph.backend.odometry`), and with the smoothed estimates and marginals the matches that
 stopped fitting are revised, unmatched landmarks are associated, landmarks spanning coplanar
-sections of a wall are split per section, and landmarks matched to the same BIM face are
-merged into one (the loop closures a drifting causal pass misses); until a round changes
-nothing. Once the association settles, the robust alignment judges which plane-to-BIM
+sections of a wall are split per section, and, in a round that split none, landmarks matched
+to the same BIM face are merged into one (the loop closures a drifting causal pass misses);
+until a round changes nothing. Once the association settles, the robust alignment judges which plane-to-BIM
 factors the alignment keeps (`bimgraph.backend.robust_alignment`): the walls consistent with
 each other decide the extrinsic and the poses, and a wall built off plan is measured against
 them, to the tolerance the kept walls show; the rounds then go on until neither changes.
@@ -77,9 +77,13 @@ class OfflineEstimator:
             t1 = time.perf_counter()
             t_opt += t1 - t0
             self._refresh(values)
+            # a landmark spanning sections of a wall is split before any merging: compared
+            # whole, a mix of sections built apart is one plane with neither, and the landmark
+            # of the section alone would lose its face for good; merging waits for the next
+            # round, whose marginals have the new landmarks
             changed = self.oracle is None and rounds <= self.cfg.offline.max_rounds and (
                 self._revise(values) | self._associate(values, marginals)
-                | self._merge(values, marginals) | self._split(values))
+                | (self._split(values) or self._merge(values, marginals)))
             t_assoc += time.perf_counter() - t1
             if not changed and self.cfg.offline.gnc and set(self._matches()) != set(self.judge.verdicts):
                 t2 = time.perf_counter()

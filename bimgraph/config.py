@@ -220,7 +220,7 @@ class DeviationConfig(Section):
     tolerance_m: float = Field(0.02, gt=0, description="allowed offset of a built face along its normal (common wall tolerance +/-2 cm)")
     tilt_tolerance_deg: float = Field(0.5, gt=0, description="allowed tilt of a built face (about 2 cm over a 2.5 m storey)")
     k_sigma: float = Field(3.0, ge=0, description="a face deviates if |offset| - k*sigma > tolerance, or its tilt likewise (a significance test, so that noise does not make a wall deviate: each flag sends someone to the wall; on 8 simulated sites, k = 2 flagged 3 sound faces, 3 none)")
-    min_keyframes: int = Field(3, ge=1, description="faces seen in fewer keyframes have not enough evidence")
+    min_keyframes: int = Field(3, ge=1, description="faces seen in fewer keyframes have not enough evidence, and unmatched planes seen in fewer are not reported as unplanned (a glimpse sends nobody to the site)")
     max_offset_sigma_m: float = Field(0.01, gt=0, description="a face is within tolerance only if its offset is at least this certain...")
     max_tilt_sigma_deg: float = Field(0.5, gt=0, description="...and its tilt at least this certain")
     match_max_offset_m: float = Field(0.2, gt=0, description="a face no landmark is associated with is measured, for the report, by a landmark passing this close to its centre...")

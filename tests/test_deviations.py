@@ -182,7 +182,8 @@ def test_status_follows_configured_tolerance():
 def room_scene():
     """south: built 6 cm off, associated; east: 8 mm off, associated; north: never seen;
     west: 12 cm off, left unassociated by the graph; a 4 m^2 partition in the middle of the
-    room; the floor; a small box side. Every landmark is tightly estimated."""
+    room; the floor; a small box side; a partition glimpsed in two keyframes. Every landmark
+    is tightly estimated."""
     faces = {n: face(n) for n in WALLS}
     planes = [
         observed(0, as_built_plane(faces["south"], 0.06), face_id="south-face"),
@@ -191,6 +192,8 @@ def room_scene():
         observed(3, np.array([1.0, 0.0, 0.0, -3.0]), extent_B=rectangle(0, 3.0, (1.0, 0.0), (3.0, 2.0)), area_m2=4.0),
         observed(4, np.array([0.0, 0.0, 1.0, 0.0]), extent_B=rectangle(2, 0.0, (0.5, 0.5), (5.5, 3.5)), area_m2=15.0),
         observed(5, np.array([0.0, 1.0, 0.0, -1.0]), extent_B=rectangle(1, 1.0, (1.7, 0.1), (2.3, 0.6)), area_m2=0.3),
+        observed(6, np.array([1.0, 0.0, 0.0, -2.0]), extent_B=rectangle(0, 2.0, (1.0, 0.0), (3.0, 2.0)), area_m2=4.0,
+                 n_keyframes=2),
     ]
     return room(), planes
 

@@ -106,7 +106,8 @@ def assess(plane_map: PlaneMap, planes: Sequence[ObservedPlane], T_S_B: np.ndarr
     used = {p.landmark for p in matched.values()}
     T_B_S = inverse(T_S_B)
     for plane in planes:
-        if plane.face_id in faces or plane.landmark in used or plane.area_m2 < cfg.unplanned_min_area_m2:
+        if (plane.face_id in faces or plane.landmark in used or plane.area_m2 < cfg.unplanned_min_area_m2
+                or plane.n_keyframes < cfg.min_keyframes):
             continue
         plane_B = plane_to_frame(plane.plane_S(), T_S_B)
         if cfg.unplanned_vertical_only and not _is_vertical(plane_B, cfg):

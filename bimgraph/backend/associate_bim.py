@@ -23,7 +23,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.stats import chi2
 from shapely.geometry import Point, Polygon
 
-from bimgraph.backend.graph import extrinsic_cov_E, pose3
+from bimgraph.backend.graph import E, L, X, extrinsic_cov_E, pose3
 from bimgraph.backend.landmarks import hull_2d, plane_basis
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BimAssociationConfig
@@ -133,10 +133,15 @@ class BimAssociator:
         return (area >= self.cfg.min_area_m2 and n_observations >= self.cfg.min_observations
                 and n_observations >= last_attempt * self.cfg.retry_growth)
 
+    def _facing(self, plane_B: np.ndarray) -> np.ndarray:
+        """The face groups (by their first face's row) within the normal angle of a plane."""
+        faces = self.faces
+        return faces.rep[faces.planes[faces.rep, :3] @ plane_B[:3] > self.cos_max]
+
     def scores(self, c: PlaneInB) -> dict[int, float]:
         """Face group -> squared Mahalanobis distance, for groups passing gate and filters."""
         faces = self.faces
-        rows = faces.rep[faces.planes[faces.rep, :3] @ c.plane_B[:3] > self.cos_max]
+        rows = self._facing(c.plane_B)
         if len(rows) == 0:
             return {}
         e = faces.residuals(c.plane_B, rows)
@@ -146,18 +151,24 @@ class BimAssociator:
         out = {}
         for row, score in zip(rows[d2 <= self.gate], d2[d2 <= self.gate]):
             group = int(faces.group[row])
-            if self.fits(c, group):
+            if self.fits(c.extent_B, c.area, group):
                 out[group] = float(score)
         return out
 
-    def fits(self, c: PlaneInB, group: int) -> bool:
+    def may_match(self, plane_B: np.ndarray, extent_B: np.ndarray, area: float) -> bool:
+        """Whether some face passes the normal angle and the geometric filters, which need no
+        covariance: a landmark none passes is not worth its joint marginal, which costs
+        more than the rest of its scoring (tens of milliseconds offline, with `E` in it)."""
+        return any(self.fits(extent_B, area, int(self.faces.group[row])) for row in self._facing(plane_B))
+
+    def fits(self, extent_B: np.ndarray, area: float, group: int) -> bool:
         """The paper's geometric filters: area, corner proximity, centre alignment."""
         cfg, outline = self.cfg, self.faces.group_outline[group]
-        if c.area > cfg.max_area_ratio * outline.area:
+        if area > cfg.max_area_ratio * outline.area:
             return False
-        if len(c.extent_B) == 0:
+        if len(extent_B) == 0:
             return True
-        uv = self.faces.to_2d(self.faces.rep[group], c.extent_B)
+        uv = self.faces.to_2d(self.faces.rep[group], extent_B)
         if shapely.distance(shapely.points(uv), outline).max() > cfg.corner_margin_m:
             return False
         hull = hull_2d(uv)
@@ -215,3 +226,16 @@ def planes_in_B_independent(T_B_S: np.ndarray, cov_T_B_S: np.ndarray, planes_S: 
         extent_B = extents_S[j] @ T_B_S[:3, :3].T + T_B_S[:3, 3] if len(extents_S[j]) else np.zeros((0, 3))
         out.append(PlaneInB(j, plane_B, cov_B, extent_B, areas[j]))
     return out
+
+
+def candidate(lm, T_S_B: gtsam.Pose3, joint, bim: BimAssociator) -> PlaneInB | None:
+    """Landmark `lm` as a candidate for `bim.match`, its covariance from `joint(keys)` (the
+    joint marginal of `E`, its anchor and its plane, in that order, keys as in
+    `bimgraph.backend.graph`); None where no face could take it whatever the covariance
+    (`BimAssociator.may_match`)."""
+    T_S_A, plane_A = pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A)
+    extent_B = lm.extent_in(T_S_B.inverse().matrix())
+    if not bim.may_match(predict_local_plane(T_S_B, T_S_A, plane_A), extent_B, lm.area):
+        return None
+    plane_B, cov_B = plane_in_B(T_S_B, T_S_A, plane_A, joint([E, X(lm.anchor), L(lm.id)]))
+    return PlaneInB(lm.id, plane_B, cov_B, extent_B, lm.area)

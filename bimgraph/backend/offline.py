@@ -27,7 +27,7 @@ import numpy as np
 
 from bimgraph.backend import drift
 from bimgraph.backend.alignment import Alignment
-from bimgraph.backend.associate_bim import PlaneInB, plane_in_B
+from bimgraph.backend.associate_bim import candidate
 from bimgraph.backend.graph import E, L, X, cov_T_B_S, pose3
 from bimgraph.backend.landmarks import KEPT, Landmark, transform_points
 from bimgraph.backend.odometry import OdometryModel
@@ -269,15 +269,10 @@ class OfflineEstimator:
         todo = [lm for lm in self._active() if lm.face is None and self.bim.eligible(lm.area, len(lm.observations))]
         if not todo:
             return False
-        T_S_B = values.atPose3(E)
-        T_B_S = T_S_B.inverse().matrix()
-        candidates = []
-        for lm in todo:
-            keys = [E, X(lm.anchor), L(lm.id)]
-            joint = marginals.jointMarginalCovariance(keys)
-            cov = np.block([[joint.at(a, b) for b in keys] for a in keys])
-            plane_B, cov_B = plane_in_B(T_S_B, pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A), cov)
-            candidates.append(PlaneInB(lm.id, plane_B, cov_B, lm.extent_in(T_B_S), lm.area))
+        from bimgraph.deviations.graph import joint_covariance
+
+        joint = functools.partial(joint_covariance, marginals)
+        candidates = [c for c in (candidate(lm, values.atPose3(E), joint, self.bim) for lm in todo) if c is not None]
         # a face merging took a landmark off would only pull it back: it stays apart
         matches = [m for m in self.bim.match(candidates) if (m.landmark, m.face) not in self.online.apart]
         for m in matches:

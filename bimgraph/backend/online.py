@@ -10,7 +10,7 @@ import gtsam
 import numpy as np
 
 from bimgraph.backend.alignment import Alignment, levelled, lock_directions, unlocked_covariance, unobservable_directions
-from bimgraph.backend.associate_bim import BimAssociator, FaceIndex, FaceMatch, PlaneInB, plane_in_B
+from bimgraph.backend.associate_bim import BimAssociator, FaceIndex, FaceMatch, candidate
 from bimgraph.backend.associate_slam import Observation, SlamAssociator, same_plane_d2
 from bimgraph.backend import drift
 from bimgraph.backend.graph import E, L, X, IncrementalGraph, cov_T_B_S
@@ -291,14 +291,11 @@ class Backend:
                                       self.landmarks[j].bim_attempt)]
         if not todo:
             return False
-        T_B_S = T_S_B.inverse().matrix()
         candidates = []
         for j in todo:
-            lm = self.landmarks[j]
-            lm.bim_attempt = len(lm.observations)
-            joint = self.graph.joint([E, X(lm.anchor), L(j)])
-            plane_B, cov_B = plane_in_B(T_S_B, gtsam.Pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A), joint)
-            candidates.append(PlaneInB(j, plane_B, cov_B, lm.extent_in(T_B_S), lm.area))
+            self.landmarks[j].bim_attempt = len(self.landmarks[j].observations)
+            if (c := candidate(self.landmarks[j], T_S_B, self.graph.joint, self.bim)) is not None:
+                candidates.append(c)
         changed = False
         for m in self.bim.match(candidates):
             if (m.landmark, m.face) not in self.apart:

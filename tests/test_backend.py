@@ -274,6 +274,30 @@ def test_a_plane_leaning_out_of_plumb_is_no_wall():
         assert (len(bim.match([PlaneInB(0, turned(axis, 3.0), cov, extent, 6.0)])) == 1) is matched
 
 
+def test_a_landmark_no_face_could_take_costs_no_joint_marginal():
+    """The BIM association reads a landmark's joint marginal (the costly part) only if some
+    face within the normal angle passes the geometric filters: a plane across the wall, or
+    one far beyond its ends, is no candidate whatever its covariance."""
+    from bimgraph.backend.associate_bim import candidate
+
+    cfg = BackendConfig().bim_association
+    faces, turned = _one_wall(cfg)
+    bim = BimAssociator(faces, cfg)
+    extent = np.array([[0.5, 0.05, 0.5], [3.5, 0.05, 0.5], [3.5, 0.05, 2.5], [0.5, 0.05, 2.5]])
+    assert bim.may_match(turned([0, 0, 1], 0.0), extent, 6.0)
+    assert not bim.may_match(turned([0, 0, 1], 90.0), extent, 6.0)
+    assert not bim.may_match(turned([0, 0, 1], 0.0), extent + [10.0, 0.0, 0.0], 6.0)
+
+    def no_joint(keys):
+        raise AssertionError("joint marginal read")
+
+    T_S_B = gtsam.Pose3()
+    lm = Landmark(0, 0, turned([0, 0, 1], 90.0), np.eye(3) * 1e-6, np.eye(4), extent_A=extent, area=6.0)
+    assert candidate(lm, T_S_B, no_joint, bim) is None
+    lm.plane_A = turned([0, 0, 1], 0.0)
+    assert candidate(lm, T_S_B, lambda keys: np.eye(15) * 1e-8, bim).landmark == 0
+
+
 def test_a_match_leaning_out_of_plumb_is_revised():
     """A matched landmark that leans 2.7 deg out of its face's plumb (a board on the wall) loses
     the match; one leaning 2 deg (a wall built out of plumb) or turned 2.9 deg about the vertical

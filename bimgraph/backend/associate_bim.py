@@ -14,6 +14,7 @@ re-estimate only `T_B_S` share it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import gtsam
@@ -24,7 +25,7 @@ from scipy.stats import chi2
 from shapely.geometry import Point, Polygon
 
 from bimgraph.backend.graph import E, L, X, extrinsic_cov_E, pose3
-from bimgraph.backend.landmarks import hull_2d, plane_basis
+from bimgraph.backend.landmarks import Landmark, hull_2d, plane_basis
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BimAssociationConfig
 from factors.plane import face_tolerance_cov, predict_local_plane
@@ -228,7 +229,8 @@ def planes_in_B_independent(T_B_S: np.ndarray, cov_T_B_S: np.ndarray, planes_S: 
     return out
 
 
-def candidate(lm, T_S_B: gtsam.Pose3, joint, bim: BimAssociator) -> PlaneInB | None:
+def candidate(lm: Landmark, T_S_B: gtsam.Pose3, joint: Callable[[list[int]], np.ndarray],
+              bim: BimAssociator) -> PlaneInB | None:
     """Landmark `lm` as a candidate for `bim.match`, its covariance from `joint(keys)` (the
     joint marginal of `E`, its anchor and its plane, in that order, keys as in
     `bimgraph.backend.graph`); None where no face could take it whatever the covariance

@@ -9,10 +9,11 @@ poses and taken out of its odometry (and its noise tightened to what the smoothe
 stopped fitting are revised, unmatched landmarks are associated, landmarks spanning coplanar
 sections of a wall are split per section, and, in a round that split none, landmarks matched
 to the same BIM face are merged into one (the loop closures a drifting causal pass misses);
-until a round changes nothing. Once the association settles, the robust alignment judges which plane-to-BIM
-factors the alignment keeps (`bimgraph.backend.robust_alignment`): the walls consistent with
-each other decide the extrinsic and the poses, and a wall built off plan is measured against
-them, to the tolerance the kept walls show; the rounds then go on until neither changes.
+until a round changes nothing. Once the association settles, the robust alignment judges
+which plane-to-BIM factors the alignment keeps (`bimgraph.backend.robust_alignment`): the
+walls consistent with each other decide the extrinsic and the poses, and a wall built off
+plan is measured against them, to the tolerance the kept walls show; the rounds then go on
+until neither changes.
 """
 
 from __future__ import annotations

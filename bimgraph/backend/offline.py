@@ -54,6 +54,9 @@ class OfflineEstimator:
         self.oracle = oracle
         self.judge = RobustAlignment(self.faces, self.online.build, self.landmarks, cfg.offline)
         self.odometry = OdometryModel(self.online.build)  # the front-end's drift and noise, as measured
+        # (landmark, anchor, keyframe, plane index) -> its observation factor: the graph is
+        # rebuilt a score of times, and its plane factors change only where landmarks do
+        self._observation_factors: dict[tuple[int, int, int, int], gtsam.NonlinearFactor] = {}
 
     def run(self, keyframes: list[Keyframe]) -> Results:
         start = time.perf_counter()
@@ -119,9 +122,12 @@ class OfflineEstimator:
                 graph.add(build.gravity(kf.index, self.odometry.pose(kf)))
         for lm in self._active():
             for k, i in lm.observations:
-                obs = observations[k][i]
-                graph.add(build.anchor_observation(lm.id, obs.plane_C, obs.cov) if k == lm.anchor else
-                          build.observation(k, lm.anchor, lm.id, obs.plane_C, obs.cov))
+                key = (lm.id, lm.anchor, k, i)
+                if key not in self._observation_factors:
+                    obs = observations[k][i]
+                    self._observation_factors[key] = (build.anchor_observation(lm.id, obs.plane_C, obs.cov) if k == lm.anchor
+                                                      else build.observation(k, lm.anchor, lm.id, obs.plane_C, obs.cov))
+                graph.add(self._observation_factors[key])
             factor = bim_factor(lm) if lm.face is not None else None
             if factor is not None:
                 graph.add(factor)

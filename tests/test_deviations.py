@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from gtsam.symbol_shorthand import L, X
 
+from bimgraph.backend.graph import joint_covariance
 from bimgraph.bim.planemap import BimFace, PlaneMap
 from bimgraph.config import DeviationConfig
 from bimgraph.deviations.assess import assess
@@ -20,7 +21,7 @@ from bimgraph.deviations.estimate import (
     face_deviation,
     plane_to_bim_residual,
 )
-from bimgraph.deviations.graph import joint_covariance, observed_plane
+from bimgraph.deviations.graph import observed_plane
 from bimgraph.deviations.visibility import expected_view_counts
 from bimgraph.geometry import plane_to_frame
 from deviation_scenes import GUIDS, T_S_A, T_S_B, WALLS, as_built_plane, camera_looking, face, observed, rectangle, room

@@ -46,6 +46,13 @@ def extrinsic_cov_E(T_B_S: np.ndarray, cov_T_B_S: np.ndarray) -> np.ndarray:
     return Ad @ cov_T_B_S @ Ad.T
 
 
+def joint_covariance(marginals: gtsam.Marginals | gtsam.ISAM2, keys: list[int]) -> np.ndarray:
+    """The joint marginal covariance of `keys` (from batch marginals or iSAM2), blocks in the
+    order given (gtsam's own `fullMatrix` orders them by key value instead)."""
+    joint = marginals.jointMarginalCovariance(gtsam.KeyVector(list(keys)))
+    return np.block([[joint.at(ki, kj) for kj in keys] for ki in keys])
+
+
 def cov_T_B_S(T_S_B: gtsam.Pose3, cov_E: np.ndarray) -> np.ndarray:
     Ad = T_S_B.AdjointMap()
     return Ad @ cov_E @ Ad.T
@@ -227,5 +234,4 @@ class IncrementalGraph:
 
     def joint(self, keys: list[int]) -> np.ndarray:
         """Joint marginal covariance of `keys`, one matrix with blocks in the order given."""
-        joint = self.isam.jointMarginalCovariance(list(keys))
-        return np.block([[joint.at(a, b) for b in keys] for a in keys])
+        return joint_covariance(self.isam, keys)

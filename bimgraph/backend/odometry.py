@@ -9,7 +9,7 @@ import gtsam
 import numpy as np
 
 from bimgraph.backend.drift import DriftRates
-from bimgraph.backend.graph import FactorBuilder, X
+from bimgraph.backend.graph import FactorBuilder, X, joint_covariance
 from bimgraph.backend.tolerance import redundancy, variance_factors
 from bimgraph.geometry import inverse
 from bimgraph.sequence.format import Keyframe
@@ -60,8 +60,6 @@ class OdometryModel:
         """The variance factors (rotation, translation) the smoothed steps of `graph` at
         `values` show, between `floor`^2 and 1: variance component estimation over the
         odometry factors, as for the walls' tolerance."""
-        from bimgraph.deviations.graph import joint_covariance
-
         marginals = gtsam.Marginals(graph, values)
         terms = []
         for previous, kf in zip(keyframes, keyframes[1:]):

@@ -29,7 +29,7 @@ import numpy as np
 from bimgraph.backend import drift
 from bimgraph.backend.alignment import Alignment
 from bimgraph.backend.associate_bim import candidate
-from bimgraph.backend.graph import E, L, X, cov_T_B_S, pose3
+from bimgraph.backend.graph import E, L, X, cov_T_B_S, joint_covariance, pose3
 from bimgraph.backend.landmarks import KEPT, Landmark, transform_points
 from bimgraph.backend.odometry import OdometryModel
 from bimgraph.backend.online import Backend, Oracle, face_misfit, observations_of, one_plane, revision_reason, unmatch
@@ -197,8 +197,6 @@ class OfflineEstimator:
         they pass `offline.merge_gate` as one plane. Two that do not are not both that wall (a board
         leaning on it, a cabinet's front): the one farther from the face loses the match and
         stays apart from it. (Coplanar sections of a wall stay apart: built, they may differ.)"""
-        from bimgraph.deviations.graph import joint_covariance
-
         by_face: dict[str, list] = {}
         for lm in self._active():
             if lm.face is not None:
@@ -221,7 +219,7 @@ class OfflineEstimator:
     def _observed_planes(self, values, marginals) -> list:
         """Every active landmark as the deviation step reads it; a matched landmark's plane-to-BIM
         factor is the one of the graph `values` and `marginals` solve."""
-        from bimgraph.deviations.graph import joint_covariance, observed_planes
+        from bimgraph.deviations.graph import observed_planes  # (it imports the backend)
 
         return observed_planes(self._active(), values, functools.partial(joint_covariance, marginals),
                                {lm.id: self.judge.judged_factor(lm) for lm in self._active() if lm.face is not None})
@@ -276,8 +274,6 @@ class OfflineEstimator:
         todo = [lm for lm in self._active() if lm.face is None and self.bim.eligible(lm.area, len(lm.observations))]
         if not todo:
             return False
-        from bimgraph.deviations.graph import joint_covariance
-
         joint = functools.partial(joint_covariance, marginals)
         candidates = [c for c in (candidate(lm, values.atPose3(E), joint, self.bim) for lm in todo) if c is not None]
         # a face merging took a landmark off would only pull it back: it stays apart

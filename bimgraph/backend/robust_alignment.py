@@ -15,7 +15,7 @@ from scipy.stats import chi2
 
 from bimgraph.backend import gnc, tolerance
 from bimgraph.backend.associate_bim import FaceIndex
-from bimgraph.backend.graph import E, L, X, FactorBuilder
+from bimgraph.backend.graph import E, L, X, FactorBuilder, joint_covariance
 from bimgraph.backend.landmarks import DIRECTION, KEPT, OUT, Landmark, LandmarkTable
 from bimgraph.config import OfflineConfig
 from factors.plane import face_tolerance_coordinates, local_plane_error
@@ -125,8 +125,6 @@ class RobustAlignment:
         alone, which a test over all three components would let pass further off. Where the
         rest of the graph does not check a factor's offset, or the offset is left free, its
         direction alone is tested."""
-        from bimgraph.deviations.graph import joint_covariance
-
         p = self.cfg.studentized_probability
         c2_offset, c2_direction = chi2.ppf(p, 1), chi2.ppf(p, 2)
         marginals = gtsam.Marginals(graph, values)
@@ -162,8 +160,6 @@ class RobustAlignment:
     def _estimated_tolerance(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[float, float]:
         """The tolerance the kept plane-to-BIM factors show at `values`, solved on `graph` (the
         graph under the current verdicts, Gaussian): `bimgraph.backend.tolerance`."""
-        from bimgraph.deviations.graph import joint_covariance
-
         marginals = gtsam.Marginals(graph, values)
         terms = []
         for (j, face), verdict in self.verdicts.items():

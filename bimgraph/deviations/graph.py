@@ -14,13 +14,6 @@ from bimgraph.backend.landmarks import transform_points
 from bimgraph.deviations.estimate import ObservedPlane
 
 
-def joint_covariance(marginals: gtsam.Marginals, keys: Sequence[int]) -> np.ndarray:
-    """The joint marginal covariance of `keys`, blocks in the order given (gtsam's own
-    `fullMatrix` orders them by key value instead)."""
-    joint = marginals.jointMarginalCovariance(gtsam.KeyVector(list(keys)))
-    return np.block([[joint.at(ki, kj) for kj in keys] for ki in keys])
-
-
 def bim_factor_linearization(factor: gtsam.NonlinearFactor, values: gtsam.Values) -> tuple[np.ndarray, np.ndarray]:
     """`(A, e_w)`: the factor's Jacobian and error, whitened and robustly re-weighted as the
     optimiser sees them, so that its cost near `values` is `|e_w + A delta|^2`."""
@@ -34,8 +27,9 @@ def observed_plane(joint: Callable[[list[int]], np.ndarray], values: gtsam.Value
                    area_m2: float = 0.0) -> ObservedPlane:
     """An `ObservedPlane` for landmark `key_plane` anchored at `key_anchor` of a solved graph.
     `joint(keys)` gives the joint marginal covariance of `keys` in the order given (e.g.
-    `partial(joint_covariance, marginals)`, or the iSAM2 wrapper's `joint`); `bim_factor` is
-    the landmark's plane-to-BIM factor if the graph holds one (keys E, anchor, plane)."""
+    `partial(bimgraph.backend.graph.joint_covariance, marginals)`, or the iSAM2 wrapper's
+    `joint`); `bim_factor` is the landmark's plane-to-BIM factor if the graph holds one (keys
+    E, anchor, plane)."""
     return ObservedPlane(
         landmark=gtsam.Symbol(key_plane).index(),
         plane_A=values.atOrientedPlane3(key_plane).planeCoefficients(),

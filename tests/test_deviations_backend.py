@@ -1,7 +1,12 @@
 """The deviation step on the real backend: the online iSAM2 graph of the backend's synthetic
 rooms, with one face of the plan moved, read through `observed_planes_isam2` and written by
 `write_deviation_outputs`; and the offline backend's robust alignment
-(`offline.gnc`), which keeps the moved face out of the alignment."""
+(`offline.gnc`), which keeps the moved face out of the alignment.
+
+Online, the robust kernel alone cannot do that for a moved wall that the walk sees first:
+the alignment follows it, and the sound walls seen later are outvoted one by one (the offline
+tests take that case). The online test moves a wall the walk meets once others have placed
+it."""
 
 import numpy as np
 import pytest
@@ -19,15 +24,16 @@ from bimgraph.deviations.report import CSV_FILE, JSON_FILE, load_deviations, rea
 from bimgraph.evaluation.metrics import ate, extrinsic_error
 from bimgraph.sequence.format import Camera
 
-MOVED = {"r00E": 0.08}  # the wall was built 8 cm into the room
+MOVED = {"r00E": 0.08}  # the wall was built 8 cm into the room; the walk starts facing it
+MOVED_LATE = {"r10E": 0.08}  # the same in the second room, first seen at keyframe 80 of 160
 
 
-def moved_plan(plane_map: PlaneMap) -> PlaneMap:
-    """The plan, with the faces in MOVED drawn where they were not built: the world (as
-    observed) lies MOVED[face] along the normal from it."""
+def moved_plan(plane_map: PlaneMap, moved: dict[str, float] = MOVED) -> PlaneMap:
+    """The plan, with the faces in `moved` drawn where they were not built: the world (as
+    observed) lies moved[face] along the normal from it."""
     faces = []
     for f in plane_map.faces:
-        shift = -MOVED.get(f.id, 0.0) * np.asarray(f.normal)
+        shift = -moved.get(f.id, 0.0) * np.asarray(f.normal)
         faces.append(f.model_copy(update={"offset": f.offset - float(shift @ f.normal),
                                           "polygon": [tuple(np.asarray(p) + shift) for p in f.polygon],
                                           "centre": tuple(np.asarray(f.centre) + shift)}))
@@ -37,7 +43,7 @@ def moved_plan(plane_map: PlaneMap) -> PlaneMap:
 @pytest.fixture(scope="module")
 def run():
     scene = make_scene(160, rooms=(2, 1), seed=0, drift_rot_deg=0.01, drift_trans_m=0.001)
-    plan = moved_plan(scene.plane_map)
+    plan = moved_plan(scene.plane_map, MOVED_LATE)
     backend = Backend(plan, BackendConfig(), scene.initial)
     results = [backend.process(kf) for kf in scene.keyframes]
     return plan, backend, results
@@ -70,10 +76,10 @@ def test_outputs_are_written_and_consistent_with_the_truth(run, tmp_path):
     measured = [f for f in data.faces if f.offset_m is not None]
     assert {f.face_id for f in measured} >= {"r00E", "r00W", "r10E", "r10W"}
     for f in measured:
-        truth = MOVED.get(f.face_id, 0.0)
+        truth = MOVED_LATE.get(f.face_id, 0.0)
         # The graph's sigma is honest: every face within 4 sigma of the truth.
         assert abs(f.offset_m - truth) < 4 * f.offset_sigma_m + 0.005, f
-    assert next(f for f in measured if f.face_id == "r00E").offset_m > 0.04
+    assert [f.face_id for f in measured if f.status == "deviating"] == ["r10E"]
 
 
 @pytest.fixture(scope="module")
@@ -152,7 +158,7 @@ def test_offline_gnc_takes_a_wall_built_out_of_line_out_of_the_alignment(tmp_pat
 
 def test_offline_tightens_the_tolerance_to_what_the_walls_show(tmp_path):
     """The sound walls of the synthetic rooms are exactly as planned: the tolerance estimated
-    from them is well inside the configured 1.5 cm, so every sound face is measured well
+    from them is well inside the configured 1 cm, so every sound face is measured well
     enough to say it is within tolerance (with the configured one, none is), and the moved
     wall is still found and measured."""
     scene = make_scene(160, rooms=(2, 1), seed=0, drift_rot_deg=0.01, drift_trans_m=0.001)
@@ -169,7 +175,7 @@ def test_offline_tightens_the_tolerance_to_what_the_walls_show(tmp_path):
         status[estimate] = {f.face_id: f.status for f in data.faces if f.offset_m is not None}
         if estimate:
             assert res.bim_tolerance == est.judge.tolerance
-            assert est.judge.tolerance[1] < 0.01 and est.judge.tolerance[0] < np.radians(0.5)
+            assert est.judge.tolerance[1] < 0.006 and est.judge.tolerance[0] < np.radians(0.5)
             moved = next(f for f in data.faces if f.face_id == "r00E")
             assert abs(moved.offset_m - MOVED["r00E"]) < min(3 * moved.offset_sigma_m, 0.01)
             assert ate(res.T_B_C, np.asarray(scene.T_B_C)) < 0.01
@@ -193,6 +199,7 @@ def test_offline_judges_each_wall_against_the_others(monkeypatch):
     verdicts, errors = {}, {}
     for studentized in (False, True):
         cfg = BackendConfig()
+        cfg.noise.bim_offset_m = 0.015  # GNC keeps whole what lies within 5.1 cm (3.4 sigma)
         cfg.offline.studentized = studentized
         est = OfflineEstimator(plan, cfg, scene.initial)
         res = est.run(scene.keyframes)

@@ -200,7 +200,26 @@ class IncrementalGraph:
         self._add_tracked(self.odometry_index, k, factor)
 
     def remove_bim(self, j: int) -> None:
-        self._remove.append(self.bim_index.pop(j))
+        """Landmark j's plane-to-BIM factor goes (if it has one: the robust alignment may have
+        taken it out)."""
+        if j in self.bim_index:
+            self._remove.append(self.bim_index.pop(j))
+
+    def set_bim(self, j: int, factor: gtsam.NonlinearFactor | None) -> None:
+        """Landmark j's plane-to-BIM factor becomes `factor` (none if None)."""
+        self.remove_bim(j)
+        if factor is not None:
+            self._add_tracked(self.bim_index, j, factor)
+
+    def without_bim(self) -> gtsam.NonlinearFactorGraph:
+        """Every factor in iSAM2 but the plane-to-BIM ones, as a batch graph (after `update`)."""
+        factors = self.isam.getFactorsUnsafe()
+        bim = set(self.bim_index.values())
+        graph = gtsam.NonlinearFactorGraph()
+        for i in range(factors.size()):
+            if i not in bim and factors.exists(i):
+                graph.add(factors.at(i))
+        return graph
 
     def update(self, keys: list[int] = ()) -> gtsam.Values:
         """Apply the queued factors and values; return the new estimates of `keys` (the first

@@ -48,8 +48,8 @@ class OfflineEstimator:
         self.cfg = cfg
         self.listener = listener or Listener()
         # the causal pass reports nothing (the listener hears the smoothed results) and leaves
-        # the drift to the rounds
-        self.online = Backend(plane_map, cfg, initial, None, oracle, covariance=False, drift_every=0)
+        # the drift and the robust alignment to the rounds
+        self.online = Backend(plane_map, cfg, initial, None, oracle, covariance=False, drift_every=0, judge_every=0)
         self.faces, self.bim, self.landmarks = self.online.faces, self.online.bim, self.online.landmarks
         self.oracle = oracle
         self.judge = RobustAlignment(self.faces, self.online.build, self.landmarks, cfg.offline)

@@ -14,9 +14,10 @@ from bimgraph.backend.associate_bim import BimAssociator, FaceIndex, FaceMatch, 
 from bimgraph.backend.associate_slam import Observation, SlamAssociator, same_plane_d2
 from bimgraph.backend import drift
 from bimgraph.backend.graph import E, L, X, IncrementalGraph, cov_T_B_S
-from bimgraph.backend.landmarks import Landmark, LandmarkTable, observation_points, transform_points
+from bimgraph.backend.landmarks import KEPT, Landmark, LandmarkTable, observation_points, transform_points
 from bimgraph.backend.odometry import OdometryModel
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
+from bimgraph.backend.robust_alignment import RobustAlignment
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig
 from bimgraph.geometry import inverse, normalise_plane
@@ -79,10 +80,11 @@ class Backend:
 
     def __init__(self, plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,
                  listener: Listener | None = None, oracle: Oracle | None = None, covariance: bool = True,
-                 drift_every: int | None = None):
+                 drift_every: int | None = None, judge_every: int | None = None):
         self.cfg = cfg
         self.covariance = covariance  # False: results carry NaN covariances (a pass nobody reads)
         self.drift_every = cfg.isam2.drift_every if drift_every is None else drift_every
+        self.judge_every = cfg.isam2.judge_every if judge_every is None else judge_every
         self.faces = FaceIndex(plane_map, cfg.bim_association)
         self.bim = BimAssociator(self.faces, cfg.bim_association)
         self.slam = SlamAssociator(cfg.slam_association)
@@ -107,6 +109,10 @@ class Backend:
         self.odometry = OdometryModel(self.build)  # the front-end's drift, taken out as found
         self._keyframes: list[Keyframe] = []  # so far, for the drift's fit
         self._count = 0
+        # the robust alignment, online: GNC alone (its tolerance estimate and studentized tests
+        # take the whole graph's marginals, seconds each time)
+        self.judge = RobustAlignment(self.faces, self.build, self.landmarks,
+                                     cfg.offline.model_copy(update={"estimate_tolerance": False, "studentized": False}))
 
     # -- the step ---------------------------------------------------------------------------
     def process(self, kf: Keyframe) -> KeyframeResult:
@@ -128,6 +134,10 @@ class Backend:
             values = self.graph.update(self._keys_of(observed) + [X(k), E])
             self._refresh(values, observed, [])
         if self.drift_every and self._count % self.drift_every == 0 and self._correct_drift():
+            everything = range(len(self.landmarks))
+            values = self.graph.update(self._keys_of(everything) + [X(k), E])
+            self._refresh(values, everything, [])
+        if self.judge_every and self._count % self.judge_every == 0 and self._judge():
             everything = range(len(self.landmarks))
             values = self.graph.update(self._keys_of(everything) + [X(k), E])
             self._refresh(values, everything, [])
@@ -199,6 +209,35 @@ class Backend:
             self.graph.add_odometry(kf.index, self.odometry.factor(previous, kf))
         return True
 
+    def _judge(self) -> bool:
+        """If a plane-to-BIM factor matched since the last judgement misfits beyond the robust
+        alignment's threshold, judge them all over the graph so far (`RobustAlignment.decide`)
+        and give each its verdict's factor: with the robust kernel alone, a wall built off plan
+        that the walk sees first holds the alignment, and each sound wall seen after it is
+        outvoted alone (`isam2.judge_every`). Whether it judged."""
+        matched = [lm for lm in self.landmarks.items if lm.face is not None and lm.frozen is None]
+        matches = [(lm.id, lm.face) for lm in matched]
+        new = [m for m in matches if m not in self.judge.verdicts]
+        if len(matches) < 3 or not new:
+            return False
+        values = self.graph.estimate()
+        if not self.judge.misfits(new, values):
+            return False
+        without_bim = self.graph.without_bim()
+
+        def graph_with(bim_factor):
+            graph = gtsam.NonlinearFactorGraph(without_bim)
+            for lm in matched:
+                if (factor := bim_factor(lm)) is not None:
+                    graph.add(factor)
+            return graph
+
+        self.judge.decide(matches, graph_with, values)
+        for lm in matched:
+            lm.alignment = self.judge.verdicts[lm.id, lm.face]
+            self.graph.set_bim(lm.id, self.judge.judged_factor(lm))
+        return True
+
     def _match_observations(self, k: int, observations: list[Observation], T_S_C: np.ndarray) -> list[int | None]:
         matches = [j for j, _ in self.slam.associate(observations, T_S_C, self.landmarks)]
         if self.oracle is None:
@@ -259,7 +298,7 @@ class Backend:
 
     def _set_face(self, j: int, face: str, score: float) -> None:
         lm = self.landmarks[j]
-        lm.face, lm.score = face, score
+        lm.face, lm.score, lm.alignment = face, score, KEPT
         self.graph.add_bim(j, lm.anchor, self.faces.planes[self.faces.row[face]], self.faces.centres[self.faces.row[face]])
         self.listener.on_association(j, face, score)
 

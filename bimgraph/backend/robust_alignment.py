@@ -45,6 +45,13 @@ class RobustAlignment:
         tolerance = (normal_rad, _FREE_OFFSET_M if verdict == DIRECTION else offset_m)
         return self.build.bim(lm.anchor, lm.id, self.faces.planes[row], self.faces.centres[row], weight, tolerance)
 
+    def misfits(self, matches: list[tuple[int, str]], values: gtsam.Values) -> bool:
+        """Whether a plane-to-BIM factor of `matches` kept whole (or not judged yet) misfits
+        beyond GNC's threshold at `values` (Gaussian, the tolerance as it stands)."""
+        c2 = chi2.ppf(self.cfg.gnc_probability, 3)
+        kept = [m for m in matches if self.verdicts.get(m, KEPT) == KEPT]
+        return bool(kept) and bool((self._squared_residuals(kept, values) > c2).any())
+
     def judged_factor(self, lm: Landmark) -> gtsam.NonlinearFactor | None:
         """The factor as the alignment judged it, under the robust kernel (also before it judged)."""
         return self.factor(lm, None, self.verdicts.get((lm.id, lm.face), KEPT))

@@ -435,3 +435,30 @@ def test_a_landmark_takes_one_plane_to_bim_factor():
     graph.add_bim(0, 0, plane, centre)
     with pytest.raises(ValueError, match="already"):
         graph.add_bim(0, 0, plane, centre)
+
+
+def test_a_landmarks_plane_to_bim_factor_is_replaced_and_left_out_of_the_batch_graph():
+    """What the online judgement does to the graph: the factor it gives a landmark replaces
+    the one in iSAM2 (none: taken out; taking out a factor that is not there is no error), and
+    the batch graph it judges over holds every other factor."""
+    from bimgraph.backend.graph import IncrementalGraph
+
+    graph = IncrementalGraph(BackendConfig(), np.eye(4), np.eye(6) * 0.01)
+    plane_C, face, centre = np.array([1.0, 0.0, 0.0, -2.0]), np.array([1.0, 0.0, 0.0, -2.0]), np.array([2.0, 0.0, 1.0])
+    graph.insert_pose(0, np.eye(4))
+    graph.insert_plane(0, plane_C)
+    graph.add(graph.build.first_pose(0, np.eye(4)))
+    graph.add(graph.build.anchor_observation(0, plane_C, None))
+    graph.add_bim(0, 0, face, centre)
+    graph.update()
+    assert graph.without_bim().size() == 3  # the extrinsic's prior, the first pose's, the observation
+    loose = graph.build.bim(0, 0, face, centre, tolerance=(np.radians(1.0), 100.0))
+    graph.set_bim(0, loose)
+    graph.update()
+    live = graph.isam.getFactorsUnsafe()
+    assert sum(live.exists(i) for i in range(live.size())) == 4
+    assert live.at(graph.bim_index[0]).equals(loose, 1e-12)
+    graph.set_bim(0, None)
+    graph.update()
+    assert 0 not in graph.bim_index and graph.without_bim().size() == 3
+    graph.remove_bim(0)  # nothing there: no error

@@ -244,9 +244,9 @@ class IncrementalGraph:
         self._tracked, self._remove, self._reorder = [], [], False
         return estimate
 
-    def estimate(self) -> gtsam.Values:
-        """Every variable's current estimate (a full back-substitution)."""
-        return self.isam.calculateEstimate()
+    def estimate(self, keys: list[int] = ()) -> gtsam.Values:
+        """The current estimate of `keys` (default: every variable's, a full back-substitution)."""
+        return self.isam.calculateEstimate(sorted(set(keys))) if keys else self.isam.calculateEstimate()
 
     def marginal(self, key: int) -> np.ndarray:
         return self.isam.marginalCovariance(key)

@@ -234,7 +234,7 @@ class IncrementalGraph:
             # plain COLAMD.
             params.constrainedKeys = gtsam.KeyGroupMap()
         result = self.isam.update(self._factors, self._values, params)
-        estimate = self.isam.calculateEstimate(sorted(set(keys))) if keys else None
+        estimate = self.estimate(keys) if keys else None
         self.update_seconds += time.perf_counter() - start
         indices = result.getNewFactorsIndices()
         for table, key, position in self._tracked:

@@ -329,6 +329,7 @@ class OfflineConfig(Section):
     drift_probability: float = Field(0.999, gt=0, lt=1, description="a drift rate (rotation or translation) is taken out only if significant at this probability against the odometry's noise (a random walk shows a trend too)")
     estimate_odometry_noise: bool = Field(True, description="with the drift taken out, tighten the odometry noise (the front-end's covariance, or noise.odometry_*) to what the smoothed steps show: variance component estimation, as for the walls; never looser than given")
     odometry_noise_floor: float = Field(0.2, gt=0, le=1, description="the estimated odometry noise is at least this fraction of the given one")
+    odometry_noise_steps: int = Field(200, ge=10, description="...estimated from at most this many steps, spread evenly over the walk (each needs the joint marginal of its two poses)")
     drift_iterations: int = Field(6, ge=1, description="fit the drift rates, re-solve: at most this many times per round (each solve recovers a share of what remains; the noise is then estimated once)")
     drift_rtol: float = Field(0.03, gt=0, description="the drift rates have settled when a fit changes them by less than this fraction (the noise: twice this); online, a refit that changes them less re-adds nothing (each solve recovers only a share of the drift left, so at 0.05 the rates stopped a few percent short: site 1 heading 0.184 deg/m against 0.191 at 0.03, truth 0.199)")
 

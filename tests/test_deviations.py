@@ -11,6 +11,7 @@ import pytest
 from gtsam.symbol_shorthand import L, X
 
 from bimgraph.backend.graph import joint_covariance
+from bimgraph.backend.marginals import JointMarginals
 from bimgraph.bim.planemap import BimFace, PlaneMap
 from bimgraph.config import DeviationConfig
 from bimgraph.deviations.assess import assess
@@ -281,3 +282,15 @@ def test_one_landmark_measures_every_face_of_its_wall_plane():
     assert by_face["south-1"].deviation.offset_m == pytest.approx(0.05, abs=1e-3)
     assert report.unplanned == []
 
+
+
+def test_joint_marginals_at_once_equal_gtsams_one_by_one():
+    """The offline estimator's joint marginals (one marginalisation onto all the keys asked
+    about) are gtsam's, block for block and in the order asked, Cauchy weights included."""
+    graph, result, E, _ = room_graph("east", 0.06)
+    marginals = gtsam.Marginals(graph, result)
+    keys = [E, X(0), X(1)] + [L(j) for j in range(len(WALLS))]
+    joint = JointMarginals(graph, result, keys)
+    for subset in ([E, X(0), L(1)], [L(2), E], [X(1), L(0), X(0)], keys[::-1]):
+        np.testing.assert_allclose(joint(subset), joint_covariance(marginals, subset), rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(joint.marginal(E), marginals.marginalCovariance(E), rtol=1e-9, atol=1e-15)

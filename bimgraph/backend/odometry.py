@@ -56,13 +56,19 @@ class OdometryModel:
         return float(np.sqrt(diag[:3].mean())), float(np.sqrt(diag[3:].mean()))
 
     def estimated_variance(self, keyframes: list[Keyframe], graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-                           confidence: float, floor: float) -> np.ndarray:
+                           confidence: float, floor: float, max_steps: int) -> np.ndarray:
         """The variance factors (rotation, translation) the smoothed steps of `graph` at
         `values` show, between `floor`^2 and 1: variance component estimation over the
-        odometry factors, as for the walls' tolerance."""
+        odometry factors, as for the walls' tolerance, from at most `max_steps` steps spread
+        evenly over the walk (each needs the joint marginal of its two poses: gtsam's, one pair
+        at a time, since neighbours share the Bayes tree's cliques and the walk's poses are
+        too many to marginalise onto at once)."""
+        steps = list(zip(keyframes, keyframes[1:]))
+        if len(steps) > max_steps:
+            steps = [steps[i] for i in np.unique(np.linspace(0, len(steps) - 1, max_steps).round().astype(int))]
         marginals = gtsam.Marginals(graph, values)
         terms = []
-        for previous, kf in zip(keyframes, keyframes[1:]):
+        for previous, kf in steps:
             A, b = self.factor(previous, kf).linearize(values).jacobian()
             terms.append(redundancy(A, -b, joint_covariance(marginals, [X(previous.index), X(kf.index)])))
         return np.clip(self.variance * variance_factors(terms, confidence, _POSE_GROUPS), floor**2, 1.0)

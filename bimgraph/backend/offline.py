@@ -29,8 +29,9 @@ import numpy as np
 from bimgraph.backend import drift
 from bimgraph.backend.alignment import Alignment
 from bimgraph.backend.associate_bim import candidate
-from bimgraph.backend.graph import E, L, X, cov_T_B_S, joint_covariance, pose3
+from bimgraph.backend.graph import E, L, X, cov_T_B_S, pose3
 from bimgraph.backend.landmarks import KEPT, Landmark, transform_points
+from bimgraph.backend.marginals import JointMarginals
 from bimgraph.backend.odometry import OdometryModel
 from bimgraph.backend.online import Backend, Oracle, face_misfit, observations_of, one_plane, revision_reason, unmatch
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
@@ -77,7 +78,7 @@ class OfflineEstimator:
             values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
             if self.cfg.offline.estimate_drift:
                 graph, values = self._settle_drift(keyframes, observations, values, params, graph)
-            marginals = gtsam.Marginals(graph, values)
+            marginals = JointMarginals(graph, values, self._landmark_keys())
             t1 = time.perf_counter()
             t_opt += t1 - t0
             self._refresh(values)
@@ -101,6 +102,11 @@ class OfflineEstimator:
 
     def _active(self):
         return [lm for lm in self.landmarks.items if lm.merged_into is None]
+
+    def _landmark_keys(self) -> list[int]:
+        """The variables whose joint marginals the rounds and the results read: the extrinsic,
+        and every active landmark with its anchor."""
+        return [E] + [key for lm in self._active() for key in (L(lm.id), X(lm.anchor))]
 
     def _matches(self) -> list[tuple[int, str]]:
         return [(lm.id, lm.face) for lm in self._active() if lm.face is not None]
@@ -154,7 +160,7 @@ class OfflineEstimator:
         # walls that gave way to a biased one: the noise stays as given
         if cfg.estimate_odometry_noise and not self.odometry.drift.is_zero():
             variance = self.odometry.estimated_variance(keyframes, graph, values, cfg.tolerance_confidence,
-                                                        cfg.odometry_noise_floor)
+                                                        cfg.odometry_noise_floor, cfg.odometry_noise_steps)
             if not np.allclose(variance, self.odometry.variance, rtol=2 * cfg.drift_rtol):
                 self.odometry.variance = variance
                 graph = self._graph(keyframes, observations)
@@ -192,7 +198,7 @@ class OfflineEstimator:
             split = True
         return split
 
-    def _merge(self, values: gtsam.Values, marginals: gtsam.Marginals) -> bool:
+    def _merge(self, values: gtsam.Values, marginals: JointMarginals) -> bool:
         """Landmarks matched to one BIM face are one plane: the oldest absorbs the others, if
         they pass `offline.merge_gate` as one plane. Two that do not are not both that wall (a board
         leaning on it, a cabinet's front): the one farther from the face loses the match and
@@ -206,7 +212,7 @@ class OfflineEstimator:
             keep = min(same, key=lambda lm: (lm.anchor, lm.id))
             for other in (lm for lm in same if lm is not keep):
                 changed = True
-                if one_plane(keep, other, functools.partial(joint_covariance, marginals), self.cfg.offline.merge_gate):
+                if one_plane(keep, other, marginals, self.cfg.offline.merge_gate):
                     keep.absorb(other, self.cfg.slam_association.extent_max_points)
                     values.erase(L(other.id))
                     continue
@@ -221,7 +227,7 @@ class OfflineEstimator:
         factor is the one of the graph `values` and `marginals` solve."""
         from bimgraph.deviations.graph import observed_planes  # (it imports the backend)
 
-        return observed_planes(self._active(), values, functools.partial(joint_covariance, marginals),
+        return observed_planes(self._active(), values, marginals,
                                {lm.id: self.judge.judged_factor(lm) for lm in self._active() if lm.face is not None})
 
     def _results(self, keyframes, values, marginals, timings, rounds) -> Results:
@@ -230,7 +236,7 @@ class OfflineEstimator:
         timings["deviation_covariances_s"] = time.perf_counter() - start
         T_S_B = values.atPose3(E)
         T_B_S = T_S_B.inverse().matrix()
-        cov = cov_T_B_S(T_S_B, marginals.marginalCovariance(E)) + self.online.locked_cov
+        cov = cov_T_B_S(T_S_B, marginals.marginal(E)) + self.online.locked_cov
         T_S_C = [values.atPose3(X(kf.index)).matrix() for kf in keyframes]
         self.online.resolve_faces(T_B_S)
         for lm in self._active():
@@ -270,12 +276,11 @@ class OfflineEstimator:
                 changed = True
         return changed
 
-    def _associate(self, values: gtsam.Values, marginals: gtsam.Marginals) -> bool:
+    def _associate(self, values: gtsam.Values, marginals: JointMarginals) -> bool:
         todo = [lm for lm in self._active() if lm.face is None and self.bim.eligible(lm.area, len(lm.observations))]
         if not todo:
             return False
-        joint = functools.partial(joint_covariance, marginals)
-        candidates = [c for c in (candidate(lm, values.atPose3(E), joint, self.bim) for lm in todo) if c is not None]
+        candidates = [c for c in (candidate(lm, values.atPose3(E), marginals, self.bim) for lm in todo) if c is not None]
         # a face merging took a landmark off would only pull it back: it stays apart
         matches = [m for m in self.bim.match(candidates) if (m.landmark, m.face) not in self.online.apart]
         for m in matches:

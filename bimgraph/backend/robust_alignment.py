@@ -15,8 +15,9 @@ from scipy.stats import chi2
 
 from bimgraph.backend import gnc, tolerance
 from bimgraph.backend.associate_bim import FaceIndex
-from bimgraph.backend.graph import E, L, X, FactorBuilder, joint_covariance
+from bimgraph.backend.graph import E, L, X, FactorBuilder
 from bimgraph.backend.landmarks import DIRECTION, KEPT, OUT, Landmark, LandmarkTable
+from bimgraph.backend.marginals import JointMarginals
 from bimgraph.config import OfflineConfig
 from factors.plane import face_tolerance_coordinates, local_plane_error
 
@@ -134,14 +135,14 @@ class RobustAlignment:
         direction alone is tested."""
         p = self.cfg.studentized_probability
         c2_offset, c2_direction = chi2.ppf(p, 1), chi2.ppf(p, 2)
-        marginals = gtsam.Marginals(graph, values)
+        joint = self._joint_marginals(graph, values)
         worst, worst_ratio = None, 1.0
         for pair, verdict in self.verdicts.items():
             if verdict == OUT:
                 continue
             j, face = pair
             A, e = self._deviation_residual(j, face, values)
-            cov = joint_covariance(marginals, [E, X(self.landmarks[j].anchor), L(j)])
+            cov = joint([E, X(self.landmarks[j].anchor), L(j)])
             both = tolerance.studentized(A, e, cov) if verdict == KEPT else None
             if both is not None:
                 offset, direction = both[0] / c2_offset, both[1] / c2_direction
@@ -167,15 +168,21 @@ class RobustAlignment:
     def _estimated_tolerance(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[float, float]:
         """The tolerance the kept plane-to-BIM factors show at `values`, solved on `graph` (the
         graph under the current verdicts, Gaussian): `bimgraph.backend.tolerance`."""
-        marginals = gtsam.Marginals(graph, values)
+        joint = self._joint_marginals(graph, values)
         terms = []
         for (j, face), verdict in self.verdicts.items():
             if verdict == KEPT:
                 A, e = self._deviation_residual(j, face, values)
-                terms.append(tolerance.redundancy(A, e, joint_covariance(marginals, [E, X(self.landmarks[j].anchor), L(j)])))
+                terms.append(tolerance.redundancy(A, e, joint([E, X(self.landmarks[j].anchor), L(j)])))
         cfg = self.cfg
         return tolerance.tightened(self.tolerance, tolerance.variance_factors(terms, cfg.tolerance_confidence),
                                    self.build.bim_tolerance(), (np.radians(cfg.tolerance_floor_deg), cfg.tolerance_floor_m))
+
+    def _joint_marginals(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> JointMarginals:
+        """The joint marginals of `graph` at `values` among the judged landmarks, their anchors
+        and the extrinsic."""
+        judged = [self.landmarks[j] for (j, _), verdict in self.verdicts.items() if verdict != OUT]
+        return JointMarginals(graph, values, [E] + [key for lm in judged for key in (L(lm.id), X(lm.anchor))])
 
     def _squared_residuals(self, matches: list[tuple[int, str]], values: gtsam.Values, free_offset: bool = False) -> np.ndarray:
         """Squared whitened residuals of the plane-to-BIM factors (Gaussian, weight 1), or of

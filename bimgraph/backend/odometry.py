@@ -21,10 +21,29 @@ _POSE_GROUPS = (0, 0, 0, 1, 1, 1)
 class OdometryModel:
     def __init__(self, build: FactorBuilder):
         self.build = build
-        self.drift = DriftRates()
-        self.variance = np.ones(2)  # factors on the given noise: rotation, translation
+        self._drift = DriftRates()
+        self._variance = np.ones(2)  # factors on the given noise: rotation, translation
         self._poses: dict[int, np.ndarray] = {}  # keyframe -> its front-end pose (parsing it is slow)
         self._covs: dict[int, np.ndarray] = {}  # keyframe -> its step's covariance as given
+        # keyframe -> its step's factor under the drift and variance as they stand (the offline
+        # graph is rebuilt a score of times, its odometry changes only with them)
+        self._factors: dict[int, gtsam.NonlinearFactor] = {}
+
+    @property
+    def drift(self) -> DriftRates:
+        return self._drift
+
+    @drift.setter
+    def drift(self, rates: DriftRates) -> None:
+        self._drift, self._factors = rates, {}
+
+    @property
+    def variance(self) -> np.ndarray:
+        return self._variance
+
+    @variance.setter
+    def variance(self, factors: np.ndarray) -> None:
+        self._variance, self._factors = np.asarray(factors, dtype=float), {}
 
     def pose(self, kf: Keyframe) -> np.ndarray:
         """The front-end's `T_S_C` of keyframe `kf` (one keyframe per index)."""
@@ -47,8 +66,11 @@ class OdometryModel:
         return self.drift.corrected(T_S_prev, inverse(T_S_prev) @ self.pose(kf))
 
     def factor(self, previous: Keyframe, kf: Keyframe) -> gtsam.NonlinearFactor:
-        """That step as a factor, under the front-end's noise."""
-        return self.build.odometry(previous.index, kf.index, self.step(previous, kf), self._cov(kf))
+        """That step as a factor, under the front-end's noise (`previous` is the keyframe
+        before `kf`: one step per keyframe)."""
+        if kf.index not in self._factors:
+            self._factors[kf.index] = self.build.odometry(previous.index, kf.index, self.step(previous, kf), self._cov(kf))
+        return self._factors[kf.index]
 
     def step_sigmas(self, keyframes: list[Keyframe]) -> tuple[float, float]:
         """The noise per step and axis, rotation (rad) and translation (m), on average."""

@@ -211,13 +211,19 @@ class IncrementalGraph:
         if factor is not None:
             self._add_tracked(self.bim_index, j, factor)
 
+    def batch(self) -> gtsam.NonlinearFactorGraph:
+        """Every factor in iSAM2 as a batch graph (after `update`)."""
+        return self._batch(skip=set())
+
     def without_bim(self) -> gtsam.NonlinearFactorGraph:
         """Every factor in iSAM2 but the plane-to-BIM ones, as a batch graph (after `update`)."""
+        return self._batch(skip=set(self.bim_index.values()))
+
+    def _batch(self, skip: set[int]) -> gtsam.NonlinearFactorGraph:
         factors = self.isam.getFactorsUnsafe()
-        bim = set(self.bim_index.values())
         graph = gtsam.NonlinearFactorGraph()
         for i in range(factors.size()):
-            if i not in bim and factors.exists(i):
+            if i not in skip and factors.exists(i):
                 graph.add(factors.at(i))
         return graph
 

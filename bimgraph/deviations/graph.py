@@ -11,6 +11,7 @@ import numpy as np
 
 from bimgraph.backend.graph import E, L, X
 from bimgraph.backend.landmarks import transform_points
+from bimgraph.backend.marginals import JointMarginals
 from bimgraph.deviations.estimate import ObservedPlane
 
 
@@ -26,10 +27,10 @@ def observed_plane(joint: Callable[[list[int]], np.ndarray], values: gtsam.Value
                    bim_factor: gtsam.NonlinearFactor | None = None, extent_S: np.ndarray | None = None,
                    area_m2: float = 0.0) -> ObservedPlane:
     """An `ObservedPlane` for landmark `key_plane` anchored at `key_anchor` of a solved graph.
-    `joint(keys)` gives the joint marginal covariance of `keys` in the order given (e.g.
-    `partial(bimgraph.backend.graph.joint_covariance, marginals)`, or the iSAM2 wrapper's
-    `joint`); `bim_factor` is the landmark's plane-to-BIM factor if the graph holds one (keys
-    E, anchor, plane)."""
+    `joint(keys)` gives the joint marginal covariance of `keys` in the order given (e.g. a
+    `bimgraph.backend.marginals.JointMarginals`, or the iSAM2 wrapper's `joint`);
+    `bim_factor` is the landmark's plane-to-BIM factor if the graph holds one (keys E,
+    anchor, plane)."""
     return ObservedPlane(
         landmark=gtsam.Symbol(key_plane).index(),
         plane_A=values.atOrientedPlane3(key_plane).planeCoefficients(),
@@ -54,8 +55,12 @@ def observed_planes(landmarks: Sequence, values: gtsam.Values, joint: Callable[[
 
 
 def observed_planes_isam2(graph, landmarks: Sequence) -> list[ObservedPlane]:
-    """The same from the backend's online `IncrementalGraph` (its `isam`, `joint` and
-    `bim_index`): every landmark at the current iSAM2 estimate."""
+    """The same from the backend's online `IncrementalGraph` (its `isam`, `batch` and
+    `bim_index`): every landmark at the current iSAM2 estimate, the joint marginals of them
+    all at once (`JointMarginals`: iSAM2's one landmark at a time took 8 s for the 211
+    landmarks of a 600-keyframe site walk)."""
     factors = graph.isam.getFactorsUnsafe()
     bim_factors = {j: factors.at(i) for j, i in graph.bim_index.items()}
-    return observed_planes(landmarks, graph.estimate(), graph.joint, bim_factors)
+    values = graph.estimate()
+    joint = JointMarginals(graph.batch(), values, [E] + [key for lm in landmarks for key in (L(lm.id), X(lm.anchor))])
+    return observed_planes(landmarks, values, joint, bim_factors)

@@ -311,13 +311,13 @@ class OfflineConfig(Section):
     """Offline (batch) mode."""
 
     max_rounds: int = Field(5, ge=1, description="optimise, re-associate, repeat at most this many times (graduated non-convexity may add two rounds after these)")
-    max_iterations: int = Field(50, ge=1, description="Levenberg-Marquardt iterations per round")
-    relative_error_tol: float = Field(1e-6, gt=0, description="Levenberg-Marquardt stops when the error improves less than this fraction")
+    max_iterations: int = Field(50, ge=1, description="batch solver (dogleg) iterations per solve")
+    relative_error_tol: float = Field(1e-6, gt=0, description="the batch solver stops when an iteration improves the error by less than this fraction")
     merge_gate: float = Field(100.0, gt=0, description="two landmarks matched to one face merge unless their squared Mahalanobis distance as one plane exceeds this; far above the SLAM gate, since landmark covariances ignore the sensor's errors shared by neighbouring keyframes (measured: same wall up to 44, a board leaning on it 140 and more)")
     gnc: bool = Field(True, description="robust alignment: graduated non-convexity (Geman-McClure) decides which plane-to-BIM factors the alignment keeps (walls consistent with each other) and which walls it only measures (built off plan), whatever the walls seen first")
     gnc_probability: float = Field(0.99, gt=0, lt=1, description="GNC keeps a plane-to-BIM factor whole if its squared whitened residual ends below this chi-square quantile (3 dof; 0.99: about 3.4 sigma), else its direction alone if that is below the 2-dof quantile (the wall built parallel to plan, off its line); it also sets the GNC kernel's width")
     gnc_step: float = Field(1.4, gt=1, description="GNC lowers the surrogate's convexity by this factor per step (the paper's 1.4)")
-    gnc_iterations: int = Field(5, ge=1, description="Levenberg-Marquardt iterations per GNC step (each starts where the last ended)")
+    gnc_iterations: int = Field(5, ge=1, description="batch solver iterations per GNC step (each starts where the last ended)")
     estimate_tolerance: bool = Field(True, description="after GNC, tighten the plane-to-BIM tolerance (noise.bim_*) to what the kept walls show: variance component estimation, its upper confidence bound; never looser than configured")
     tolerance_confidence: float = Field(0.95, gt=0, lt=1, description="confidence of that upper bound (a few walls cannot talk the tolerance down)")
     tolerance_floor_deg: float = Field(0.1, gt=0, description="the estimated normal tolerance is at least this...")

@@ -3,7 +3,7 @@
 A causal pass of the online estimator first associates observations to landmarks and gives
 the starting estimate (a batch start from the drifting front-end alone leaves the far walls
 too uncertain to match). Then, in rounds: the graph is built from the associations,
-Levenberg-Marquardt smooths it, the front-end's systematic drift is measured from the smoothed
+a batch solve (`graph.BatchSolver`) smooths it, the front-end's systematic drift is measured from the smoothed
 poses and taken out of its odometry (and its noise tightened to what the smoothed steps show:
 `bimgraph.backend.odometry`), and with the smoothed estimates and marginals the matches that
 stopped fitting are revised, unmatched landmarks are associated, landmarks spanning coplanar
@@ -29,7 +29,7 @@ import numpy as np
 from bimgraph.backend import drift
 from bimgraph.backend.alignment import Alignment
 from bimgraph.backend.associate_bim import candidate
-from bimgraph.backend.graph import E, L, X, cov_T_B_S, pose3
+from bimgraph.backend.graph import E, L, X, BatchSolver, cov_T_B_S, pose3
 from bimgraph.backend.landmarks import KEPT, Landmark, transform_points
 from bimgraph.backend.marginals import JointMarginals
 from bimgraph.backend.odometry import OdometryModel
@@ -67,17 +67,15 @@ class OfflineEstimator:
         values = self.online.graph.estimate()
         observations = {kf.index: observations_of(kf, self.online.build.default_plane_cov) for kf in keyframes}
 
-        params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(self.cfg.offline.max_iterations)
-        params.setRelativeErrorTol(self.cfg.offline.relative_error_tol)
+        solve = BatchSolver(self.cfg.offline.max_iterations, self.cfg.offline.relative_error_tol)
         rounds, t_opt, t_assoc = 0, 0.0, 0.0
         while True:
             rounds += 1
             t0 = time.perf_counter()
             graph = self._graph(keyframes, observations)
-            values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+            values = solve(graph, values)
             if self.cfg.offline.estimate_drift:
-                graph, values = self._settle_drift(keyframes, observations, values, params, graph)
+                graph, values = self._settle_drift(keyframes, observations, values, solve, graph)
             marginals = JointMarginals(graph, values, self._landmark_keys())
             t1 = time.perf_counter()
             t_opt += t1 - t0
@@ -139,7 +137,7 @@ class OfflineEstimator:
                 graph.add(factor)
         return graph
 
-    def _settle_drift(self, keyframes: list[Keyframe], observations, values: gtsam.Values, params,
+    def _settle_drift(self, keyframes: list[Keyframe], observations, values: gtsam.Values, solve: BatchSolver,
                       graph: gtsam.NonlinearFactorGraph) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
         """Fit the front-end's drift rates to the smoothed poses, take them out of the odometry
         and re-solve until they settle; then, once a round, fit its noise to the smoothed steps.
@@ -155,7 +153,7 @@ class OfflineEstimator:
                 break
             self.odometry.drift = rates
             graph = self._graph(keyframes, observations)
-            values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+            values = solve(graph, values)
         # with no drift to take out, small step residuals cannot tell a precise front-end from
         # walls that gave way to a biased one: the noise stays as given
         if cfg.estimate_odometry_noise and not self.odometry.drift.is_zero():
@@ -164,7 +162,7 @@ class OfflineEstimator:
             if not np.allclose(variance, self.odometry.variance, rtol=2 * cfg.drift_rtol):
                 self.odometry.variance = variance
                 graph = self._graph(keyframes, observations)
-                values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+                values = solve(graph, values)
         return graph, values
 
     def _split(self, values: gtsam.Values) -> bool:

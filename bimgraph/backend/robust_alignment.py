@@ -15,7 +15,7 @@ from scipy.stats import chi2
 
 from bimgraph.backend import gnc, tolerance
 from bimgraph.backend.associate_bim import FaceIndex
-from bimgraph.backend.graph import E, L, X, FactorBuilder
+from bimgraph.backend.graph import E, L, X, BatchSolver, FactorBuilder
 from bimgraph.backend.landmarks import DIRECTION, KEPT, OUT, Landmark, LandmarkTable
 from bimgraph.backend.marginals import JointMarginals
 from bimgraph.config import OfflineConfig
@@ -80,9 +80,7 @@ class RobustAlignment:
         (landmark, face) pairs to judge; returns the estimate under the verdicts."""
         cfg = self.cfg
         c2, c2_direction = chi2.ppf(cfg.gnc_probability, 3), chi2.ppf(cfg.gnc_probability, 2)
-        params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(cfg.gnc_iterations)
-        params.setRelativeErrorTol(cfg.relative_error_tol)
+        solve = BatchSolver(cfg.gnc_iterations, cfg.relative_error_tol)
         without_bim = graph_with(lambda lm: None)
 
         def judged(values):
@@ -92,7 +90,7 @@ class RobustAlignment:
             direction = self._squared_residuals(matches, values, free_offset=True) <= c2_direction
             verdicts = {m: KEPT if w else DIRECTION if d else OUT for m, w, d in zip(matches, whole, direction)}
             graph = graph_with(lambda lm: self.factor(lm, 1.0, verdicts[lm.id, lm.face]))
-            values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+            values = solve(graph, values)
             truncated = np.minimum(self._squared_residuals(matches, values), c2)
             return without_bim.error(values) + 0.5 * float(truncated.sum()), verdicts, values, graph
 
@@ -103,7 +101,7 @@ class RobustAlignment:
             for mu in gnc.schedule(mu, cfg.gnc_step):
                 weights = dict(zip(matches, gnc.gm_weights(r2, mu, c2)))
                 graph = graph_with(lambda lm: self.factor(lm, weights[lm.id, lm.face]))
-                values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+                values = solve(graph, values)
                 r2 = self._squared_residuals(matches, values)
             candidates.append(judged(values))
         _, self.verdicts, values, graph = min(candidates, key=lambda candidate: candidate[0])
@@ -117,7 +115,7 @@ class RobustAlignment:
             pair, verdict = demoted
             self.verdicts[pair] = verdict
             graph = graph_with(lambda lm: self.factor(lm, 1.0, self.verdicts[lm.id, lm.face]))
-            values = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+            values = solve(graph, values)
         return values
 
     def _worst_studentized(self, graph: gtsam.NonlinearFactorGraph,

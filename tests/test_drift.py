@@ -131,3 +131,22 @@ def test_online_takes_the_drift_out_as_it_finds_it():
         if every:
             assert np.degrees(backend.odometry.drift.rotation[2]) == pytest.approx(-YAW_DEG_PER_M, rel=0.3)
     assert errors[50] < 0.8 * errors[0], errors
+
+
+def test_odometry_factors_are_rebuilt_when_the_drift_or_the_noise_changes():
+    """The odometry model keeps each step's factor; a new drift or noise estimate replaces them."""
+    from bimgraph.backend.graph import FactorBuilder
+    from bimgraph.backend.odometry import OdometryModel
+    from bimgraph.sequence.format import Keyframe
+
+    model = OdometryModel(FactorBuilder(BackendConfig()))
+    a, b = (Keyframe(index=k, stamp=float(k), T_S_C=[float(k), 0, 0, 0, 0, 0, 1]) for k in range(2))
+    first = model.factor(a, b)
+    assert model.factor(a, b) is first
+    model.drift = drift.DriftRates(np.array([0.0, 0.0, 0.01]), np.array([0.01, 0.0, 0.0]))
+    moved = model.factor(a, b)
+    np.testing.assert_allclose(moved.measured().translation(), [1.01, 0.0, 0.0], atol=1e-12)
+    model.variance = np.array([0.25, 0.25])
+    tightened = model.factor(a, b)
+    assert tightened is not moved
+    np.testing.assert_allclose(tightened.noiseModel().sigmas(), 0.5 * moved.noiseModel().sigmas(), rtol=1e-12)

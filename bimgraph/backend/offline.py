@@ -2,10 +2,11 @@
 
 A causal pass of the online estimator first associates observations to landmarks and gives
 the starting estimate (a batch start from the drifting front-end alone leaves the far walls
-too uncertain to match). Then, in rounds: the graph is built from the associations,
-a batch solve (`graph.BatchSolver`) smooths it, the front-end's systematic drift is measured from the smoothed
-poses and taken out of its odometry (and its noise tightened to what the smoothed steps show:
-`bimgraph.backend.odometry`), and with the smoothed estimates and marginals the matches that
+too uncertain to match). Then, in rounds: the graph is built from the associations, a batch
+solve (`graph.BatchSolver`) smooths it, the front-end's systematic drift is measured from the
+smoothed poses and taken out of its odometry (and its noise tightened to what the smoothed
+steps show: `bimgraph.backend.odometry`), and with the smoothed estimates and the joint
+marginals of the landmarks (`bimgraph.backend.marginals`) the matches that
 stopped fitting are revised, unmatched landmarks are associated, landmarks spanning coplanar
 sections of a wall are split per section, and, in a round that split none, landmarks matched
 to the same BIM face are merged into one (the loop closures a drifting causal pass misses);

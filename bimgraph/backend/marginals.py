@@ -6,7 +6,9 @@ Bayes net through the tree for every such request; here the graph, linearised at
 is marginalised onto all the variables asked about in one elimination, and that marginal's
 information is inverted densely. Every joint marginal among them is then a block of one matrix
 (measured on a 600-keyframe site walk: 186 landmarks' joints with anchor and extrinsic 5.4 s
-one by one, 0.25 s at once; the same numbers to 1e-12).
+one by one, 0.25 s at once; the same numbers to 1e-12). The inverse is dense in the variables
+asked about, so its cost grows with their cube: 0.3 s for site 2's 1446 dimensions, about 3 s
+for 4000 (some 400 landmarks with their anchors), where gtsam's one at a time would take as long.
 """
 
 from __future__ import annotations

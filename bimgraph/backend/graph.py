@@ -53,6 +53,12 @@ def joint_covariance(marginals: gtsam.Marginals | gtsam.ISAM2, keys: list[int]) 
     return np.block([[joint.at(ki, kj) for kj in keys] for ki in keys])
 
 
+def bim_keys(landmarks) -> list[int]:
+    """The variables of these landmarks' plane-to-BIM factors: the extrinsic, each landmark
+    and its anchor (`bimgraph.backend.landmarks.Landmark`s), sorted."""
+    return sorted({E} | {X(lm.anchor) for lm in landmarks} | {L(lm.id) for lm in landmarks})
+
+
 def cov_T_B_S(T_S_B: gtsam.Pose3, cov_E: np.ndarray) -> np.ndarray:
     Ad = T_S_B.AdjointMap()
     return Ad @ cov_E @ Ad.T

@@ -30,7 +30,7 @@ import numpy as np
 from bimgraph.backend import drift
 from bimgraph.backend.alignment import Alignment
 from bimgraph.backend.associate_bim import candidate
-from bimgraph.backend.graph import E, L, X, BatchSolver, cov_T_B_S, pose3
+from bimgraph.backend.graph import E, L, X, BatchSolver, bim_keys, cov_T_B_S, pose3
 from bimgraph.backend.landmarks import KEPT, Landmark, transform_points
 from bimgraph.backend.marginals import JointMarginals
 from bimgraph.backend.odometry import OdometryModel
@@ -77,7 +77,9 @@ class OfflineEstimator:
             values = solve(graph, values)
             if self.cfg.offline.estimate_drift:
                 graph, values = self._settle_drift(keyframes, observations, values, solve, graph)
-            marginals = JointMarginals(graph, values, self._landmark_keys())
+            # the joint marginals the rounds and the results read: each active landmark's with its
+            # anchor and the extrinsic
+            marginals = JointMarginals(graph, values, bim_keys(self._active()))
             t1 = time.perf_counter()
             t_opt += t1 - t0
             self._refresh(values)
@@ -101,11 +103,6 @@ class OfflineEstimator:
 
     def _active(self):
         return [lm for lm in self.landmarks.items if lm.merged_into is None]
-
-    def _landmark_keys(self) -> list[int]:
-        """The variables whose joint marginals the rounds and the results read: the extrinsic,
-        and every active landmark with its anchor."""
-        return [E] + [key for lm in self._active() for key in (L(lm.id), X(lm.anchor))]
 
     def _matches(self) -> list[tuple[int, str]]:
         return [(lm.id, lm.face) for lm in self._active() if lm.face is not None]

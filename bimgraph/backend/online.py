@@ -13,7 +13,7 @@ from bimgraph.backend.alignment import Alignment, levelled, lock_directions, unl
 from bimgraph.backend.associate_bim import BimAssociator, FaceIndex, FaceMatch, candidate
 from bimgraph.backend.associate_slam import Observation, SlamAssociator, same_plane_d2
 from bimgraph.backend import drift
-from bimgraph.backend.graph import E, L, X, IncrementalGraph, cov_T_B_S
+from bimgraph.backend.graph import E, L, X, IncrementalGraph, bim_keys, cov_T_B_S
 from bimgraph.backend.landmarks import KEPT, Landmark, LandmarkTable, observation_points, transform_points
 from bimgraph.backend.odometry import OdometryModel
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
@@ -224,12 +224,12 @@ class Backend:
         matches = [(lm.id, lm.face) for lm in matched]
         new = [lm for lm in matched if (lm.id, lm.face) not in self.judge.verdicts]
         if len(matches) < 3 or not new or not self.judge.misfits(
-                [(lm.id, lm.face) for lm in new], self.graph.estimate(self._bim_keys(new))):
+                [(lm.id, lm.face) for lm in new], self.graph.estimate(bim_keys(new))):
             return False
         # the rest of the graph as its Gaussian marginal on the keys the judgement moves: GNC's
         # many solves are then of a few dozen variables, not of the whole walk (measured on the
         # simulated walks: 0.05-0.6 s a judgement against 0.5-2 s, the same verdicts)
-        keys = self._bim_keys(matched)
+        keys = bim_keys(matched)
         marginal = self.graph.without_bim().linearize(self.graph.estimate()).marginal(gtsam.KeyVector(keys))
         point = self.graph.estimate(keys)
         rest = gtsam.NonlinearFactorGraph()
@@ -248,10 +248,6 @@ class Backend:
             lm.alignment = self.judge.verdicts[lm.id, lm.face]
             self.graph.set_bim(lm.id, self.judge.judged_factor(lm))
         return True
-
-    def _bim_keys(self, landmarks: list[Landmark]) -> list[int]:
-        """The variables of these landmarks' plane-to-BIM factors."""
-        return sorted({E} | {X(lm.anchor) for lm in landmarks} | {L(lm.id) for lm in landmarks})
 
     def _match_observations(self, k: int, observations: list[Observation], T_S_C: np.ndarray) -> list[int | None]:
         matches = [j for j, _ in self.slam.associate(observations, T_S_C, self.landmarks)]

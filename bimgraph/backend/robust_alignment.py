@@ -15,7 +15,7 @@ from scipy.stats import chi2
 
 from bimgraph.backend import gnc, tolerance
 from bimgraph.backend.associate_bim import FaceIndex
-from bimgraph.backend.graph import E, L, X, BatchSolver, FactorBuilder
+from bimgraph.backend.graph import E, L, X, BatchSolver, FactorBuilder, bim_keys
 from bimgraph.backend.landmarks import DIRECTION, KEPT, OUT, Landmark, LandmarkTable
 from bimgraph.backend.marginals import JointMarginals
 from bimgraph.config import OfflineConfig
@@ -180,7 +180,7 @@ class RobustAlignment:
         """The joint marginals of `graph` at `values` among the judged landmarks, their anchors
         and the extrinsic."""
         judged = [self.landmarks[j] for (j, _), verdict in self.verdicts.items() if verdict != OUT]
-        return JointMarginals(graph, values, [E] + [key for lm in judged for key in (L(lm.id), X(lm.anchor))])
+        return JointMarginals(graph, values, bim_keys(judged))
 
     def _squared_residuals(self, matches: list[tuple[int, str]], values: gtsam.Values, free_offset: bool = False) -> np.ndarray:
         """Squared whitened residuals of the plane-to-BIM factors (Gaussian, weight 1), or of

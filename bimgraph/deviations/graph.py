@@ -9,7 +9,7 @@ from collections.abc import Callable, Mapping, Sequence
 import gtsam
 import numpy as np
 
-from bimgraph.backend.graph import E, L, X
+from bimgraph.backend.graph import E, L, X, bim_keys
 from bimgraph.backend.landmarks import transform_points
 from bimgraph.backend.marginals import JointMarginals
 from bimgraph.deviations.estimate import ObservedPlane
@@ -62,5 +62,5 @@ def observed_planes_isam2(graph, landmarks: Sequence) -> list[ObservedPlane]:
     factors = graph.isam.getFactorsUnsafe()
     bim_factors = {j: factors.at(i) for j, i in graph.bim_index.items()}
     values = graph.estimate()
-    joint = JointMarginals(graph.batch(), values, [E] + [key for lm in landmarks for key in (L(lm.id), X(lm.anchor))])
+    joint = JointMarginals(graph.batch(), values, bim_keys(landmarks))
     return observed_planes(landmarks, values, joint, bim_factors)

@@ -175,9 +175,14 @@ def plane_prior_factor(plane_z, noise: gtsam.noiseModel.Gaussian, key_plane: int
     """A C++ prior on an OrientedPlane3 (gtsam's Python wrapper has no PriorFactor for it): a
     Gaussian factor linearised at the measurement, kept by `LinearContainerFactor`, which
     re-evaluates it through `localCoordinates`, i.e. `plane_prior_error`."""
-    z = gtsam.OrientedPlane3(normalise_plane(plane_z))
-    R = noise.R()
-    linear = gtsam.JacobianFactor(key_plane, R, np.zeros(3), gtsam.noiseModel.Unit.Create(3))
     point = gtsam.Values()
-    point.insert(key_plane, z)
+    point.insert(key_plane, gtsam.OrientedPlane3(normalise_plane(plane_z)))
+    return plane_prior_at(point, key_plane, noise.R())
+
+
+def plane_prior_at(point: gtsam.Values, key_plane: int, R: np.ndarray) -> gtsam.NonlinearFactor:
+    """`plane_prior_factor` with its measurement given as `point`, a Values holding it at
+    `key_plane` (which a caller may reuse: inserting a plane through gtsam's Python overloads
+    costs 30 us), and its noise as the square-root information `R`."""
+    linear = gtsam.JacobianFactor(key_plane, R, np.zeros(3), gtsam.noiseModel.Unit.Create(3))
     return gtsam.LinearContainerFactor(linear, point)

@@ -167,15 +167,16 @@ def test_slam_gate_is_the_plane_factor_residual():
         plane_A = normalise_plane(rng.normal(size=4))
         cov_A = np.diag(rng.uniform(1e-5, 1e-3, 3))
         table.add(Landmark(j, j, plane_A, cov_A, T_S_A))
-    plane_C = normalise_plane(plane_from_frame(table[0].plane_S, inverse(T_S_C)) + rng.normal(size=4) * 0.02)
-    obs = Observation(0, plane_C, np.diag([1e-4, 2e-4, 3e-4]), np.zeros((0, 3)))
-    d2 = mahalanobis_to_landmarks(obs, T_S_C, table, np.arange(4))
-    for j in range(4):
-        lm = table[j]
+    observations = [Observation(i, normalise_plane(plane_from_frame(table[i].plane_S, inverse(T_S_C)) + rng.normal(size=4) * 0.02),
+                                np.diag(rng.uniform(1e-4, 3e-4, 3)), np.zeros((0, 3))) for i in range(2)]
+    pairs = (np.repeat([0, 1], 4), np.tile(np.arange(4), 2))
+    d2 = mahalanobis_to_landmarks(observations, T_S_C, table, pairs)
+    for i, j, d2_ij in zip(*pairs, d2):
+        lm, obs = table[j], observations[i]
         e, (_, _, H_L) = local_plane_error(gtsam.Pose3(T_S_C), gtsam.Pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A),
-                                           plane_C, jacobians=True)
+                                           obs.plane_C, jacobians=True)
         S = H_L @ lm.cov_A @ H_L.T + obs.cov
-        assert d2[j] == pytest.approx(e @ np.linalg.solve(S, e), rel=1e-9)
+        assert d2_ij == pytest.approx(e @ np.linalg.solve(S, e), rel=1e-9)
 
 
 def test_bim_association_alone(scene, cfg):

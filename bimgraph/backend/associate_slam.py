@@ -35,26 +35,29 @@ class Observation:
     area: float | None = None
 
 
-def mahalanobis_to_landmarks(obs: Observation, T_S_C: np.ndarray, landmarks: LandmarkTable, js: np.ndarray) -> np.ndarray:
-    """Squared Mahalanobis distance of the observation to each landmark in `js`: the residual
-    of the plane factor that would join them (`factors.local_plane_error` with the camera as
-    pose), with the landmark's marginal propagated through its Jacobian plus the observation's
-    covariance. Vectorised over landmarks."""
+def mahalanobis_to_landmarks(observations: list[Observation], T_S_C: np.ndarray, landmarks: LandmarkTable,
+                             pairs: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Squared Mahalanobis distance of each pair (observation index, landmark) in `pairs`:
+    the residual of the plane factor that would join them (`factors.local_plane_error` with
+    the camera as pose), with the landmark's marginal propagated through its Jacobian plus the
+    observation's covariance. Vectorised over the pairs (numpy's calls cost more than the
+    maths: one call for a keyframe's pairs, not one per observation)."""
+    i, js = pairs
     # A plane is a covector: seen from C, landmark j's plane (n, d) in A is T_A_C^T @ (n, d).
     # With P taking it to the residual (n in the measurement's Unit3 basis; minus d), one
-    # product per landmark gives both the residual and, through the plane's own basis, its
-    # Jacobian (fewer numpy calls than spelling out n and d: they cost more than the maths).
+    # product per pair gives both the residual and, through the plane's own basis, its Jacobian.
     A_to_C = (landmarks.T_A_S[js] @ T_S_C).transpose(0, 2, 1)
-    P = np.zeros((3, 4))
-    P[:2, :3] = gtsam.Unit3(obs.plane_C[:3]).basis().T
-    P[2, 3] = -1.0
-    PM = P @ A_to_C
+    P = np.zeros((len(observations), 3, 4))
+    for row, obs in enumerate(observations):
+        P[row, :2, :3] = gtsam.Unit3(obs.plane_C[:3]).basis().T
+    P[:, 2, 3] = -1.0
+    PM = P[i] @ A_to_C
     e = (PM @ landmarks.planes_A[js, :, None])[:, :, 0]
-    e[:, 2] += obs.plane_C[3]
+    e[:, 2] += np.array([obs.plane_C[3] for obs in observations])[i]
     # H = d e / d plane_A (the normal moving along its basis B_A, then d):
     # [[B_z^T R^T B_A, 0], [-t^T B_A, -1]]
     H = np.concatenate([PM[:, :, :3] @ landmarks.bases_A[js], PM[:, :, 3:]], axis=2)
-    S = H @ landmarks.covs_A[js] @ H.transpose(0, 2, 1) + obs.cov
+    S = H @ landmarks.covs_A[js] @ H.transpose(0, 2, 1) + np.stack([obs.cov for obs in observations])[i]
     return np.einsum("ji,ji->j", e, np.linalg.solve(S, e[:, :, None])[:, :, 0])
 
 
@@ -87,18 +90,22 @@ class SlamAssociator:
         self.gate = chi2.ppf(cfg.gate_probability, 3)
         self.cos_max = np.cos(np.radians(cfg.max_normal_angle_deg))
 
-    def candidates(self, obs: Observation, T_S_C: np.ndarray, planes_in_C: np.ndarray, landmarks: LandmarkTable) -> np.ndarray:
-        """Landmarks close enough in normal, offset and extent to be worth scoring."""
-        ok = (planes_in_C[:, :3] @ obs.plane_C[:3] > self.cos_max) & (
-            np.abs(planes_in_C[:, 3] - obs.plane_C[3]) < self.cfg.max_offset_m)
-        if len(obs.points_C):
-            points_S = transform_points(T_S_C, obs.points_C)
-            centre = points_S.mean(axis=0)
-            radius = np.linalg.norm(points_S - centre, axis=1).max()
-            # bounding spheres: a lower bound of the exact extent gap
-            gap = np.linalg.norm(landmarks.centres_S - centre, axis=1) - landmarks.radii - radius
-            ok &= ~(gap > self.cfg.max_extent_gap_m)
-        return np.flatnonzero(ok)
+    def candidates(self, observations: list[Observation], T_S_C: np.ndarray, landmarks: LandmarkTable) -> np.ndarray:
+        """(observation, landmark) pairs close enough in normal, offset and extent to be worth
+        scoring, as a boolean matrix."""
+        planes_in_C = _planes_to_frame(landmarks.planes_S, T_S_C)
+        planes_C = np.stack([obs.plane_C for obs in observations])
+        ok = (planes_C[:, :3] @ planes_in_C[:, :3].T > self.cos_max) & (
+            np.abs(planes_in_C[None, :, 3] - planes_C[:, 3:]) < self.cfg.max_offset_m)
+        for row, obs in enumerate(observations):
+            if len(obs.points_C):
+                points_S = transform_points(T_S_C, obs.points_C)
+                centre = points_S.mean(axis=0)
+                radius = np.linalg.norm(points_S - centre, axis=1).max()
+                # bounding spheres: a lower bound of the exact extent gap
+                gap = np.linalg.norm(landmarks.centres_S - centre, axis=1) - landmarks.radii - radius
+                ok[row] &= ~(gap > self.cfg.max_extent_gap_m)
+        return ok
 
     def associate(self, observations: list[Observation], T_S_C: np.ndarray, landmarks: LandmarkTable):
         """Landmark id (or None for a new landmark) and Mahalanobis distance for each
@@ -107,22 +114,21 @@ class SlamAssociator:
         out: list[tuple[int | None, float]] = [(None, float("nan"))] * n_obs
         if n_obs == 0 or len(landmarks) == 0:
             return out
-        planes_in_C = _planes_to_frame(landmarks.planes_S, T_S_C)
-        pairs: dict[tuple[int, int], float] = {}
-        for i, obs in enumerate(observations):
-            js = self.candidates(obs, T_S_C, planes_in_C, landmarks)
-            if len(js) == 0:
-                continue
-            d2 = mahalanobis_to_landmarks(obs, T_S_C, landmarks, js)
-            for j, score in zip(js[d2 <= self.gate], d2[d2 <= self.gate]):
-                if extent_gap(obs, landmarks.T_A_S[j] @ T_S_C, landmarks[j]) <= self.cfg.max_extent_gap_m:
-                    pairs[(i, int(j))] = float(score)
-        if not pairs:
+        pairs = np.nonzero(self.candidates(observations, T_S_C, landmarks))
+        if len(pairs[0]) == 0:
             return out
-        cols = sorted({j for _, j in pairs})
+        d2 = mahalanobis_to_landmarks(observations, T_S_C, landmarks, pairs)
+        gated = d2 <= self.gate
+        scores: dict[tuple[int, int], float] = {}
+        for i, j, score in zip(pairs[0][gated], pairs[1][gated], d2[gated]):
+            if extent_gap(observations[i], landmarks.T_A_S[j] @ T_S_C, landmarks[j]) <= self.cfg.max_extent_gap_m:
+                scores[(int(i), int(j))] = float(score)
+        if not scores:
+            return out
+        cols = sorted({j for _, j in scores})
         cost = np.full((n_obs, len(cols)), _INFEASIBLE)
-        for (i, j), d2 in pairs.items():
-            cost[i, cols.index(j)] = d2
+        for (i, j), score in scores.items():
+            cost[i, cols.index(j)] = score
         for i, c in zip(*linear_sum_assignment(cost)):
             if cost[i, c] < _INFEASIBLE:
                 out[i] = (cols[c], float(cost[i, c]))

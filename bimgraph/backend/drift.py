@@ -53,7 +53,7 @@ class DriftRates:
                     or np.linalg.norm(self.translation - other.translation) > rtol * scale)
 
     def is_zero(self) -> bool:
-        return not (np.any(self.rotation) or np.any(self.translation))
+        return not (self.rotation.any() or self.translation.any())
 
     def summary(self) -> dict:
         """The rates as a user reads them: degrees and percent per metre."""

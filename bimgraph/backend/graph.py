@@ -12,12 +12,14 @@ factor, so that the front-end's drift, once measured, can be taken out of them a
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 
 from bimgraph.config import BackendConfig
-from factors import face_tolerance_cov, local_plane_factor, plane_prior_factor, plane_to_bim_factor
+from bimgraph.geometry import normalise_plane
+from factors import face_tolerance_cov, local_plane_factor, plane_prior_at, plane_prior_factor, plane_to_bim_factor
 
 X = gtsam.symbol_shorthand.X
 L = gtsam.symbol_shorthand.L
@@ -152,6 +154,16 @@ class FactorBuilder:
         return gtsam.PriorFactorPose3(E, pose3(T_B_S).inverse(), noise)
 
 
+@dataclass(frozen=True)
+class FrozenPlane:
+    """A frozen landmark as `IncrementalGraph.add_frozen_observation` copies it: its anchor
+    pose, its plane in the anchor and the square-root information of that plane's prior."""
+
+    T_S_A: gtsam.Pose3
+    plane_A: gtsam.OrientedPlane3
+    plane_R: np.ndarray
+
+
 class IncrementalGraph:
     """iSAM2 over the graph. Factors and new values are queued, then `update` applies them."""
 
@@ -185,24 +197,31 @@ class IncrementalGraph:
     def insert_plane(self, j: int, plane: np.ndarray) -> None:
         self._values.insert(L(j), gtsam.OrientedPlane3(plane))
 
-    def add_frozen_observation(self, k: int, T_S_A: np.ndarray, plane_A: np.ndarray, cov_A: np.ndarray,
-                               plane_C: np.ndarray, cov) -> None:
-        """Keyframe k sees a frozen landmark: the plane `plane_A` (covariance `cov_A`) of the
-        anchor pose `T_S_A`, as they were when it froze. Both enter as copies of their own, held
-        by priors, so that the factor touches no variable that other keyframes share: a plane
-        seen from everywhere (the floor) would otherwise put itself and its anchor into every
-        clique's separator of iSAM2's Bayes tree, and every update would back-substitute the
-        whole tree (measured: 5 ms per keyframe at 2000 keyframes, 0.5 ms without). Each copy
-        carries the plane's whole uncertainty as if it were its own, so the poses' marginals
-        come out optimistic where the frozen plane is all that holds them (measured on the
-        two-room test world: height 7 mm against 15 mm unfrozen, tilt 0.15 against 0.20 deg;
-        the extrinsic's 2.5 %)."""
+    def freeze(self, T_S_A: np.ndarray, plane_A: np.ndarray, cov_A: np.ndarray) -> "FrozenPlane":
+        """A landmark's plane `plane_A` (covariance `cov_A`) of the anchor pose `T_S_A`, as they
+        are now, for `add_frozen_observation`."""
+        return FrozenPlane(pose3(T_S_A), gtsam.OrientedPlane3(normalise_plane(plane_A)),
+                           gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov_A)).R())
+
+    def add_frozen_observation(self, k: int, frozen: "FrozenPlane", plane_C: np.ndarray, cov) -> None:
+        """Keyframe k sees a frozen landmark. Its anchor and plane enter as copies of their own,
+        held by priors, so that the factor touches no variable that other keyframes share: a
+        plane seen from everywhere (the floor) would otherwise put itself and its anchor into
+        every clique's separator of iSAM2's Bayes tree, and every update would back-substitute
+        the whole tree (measured: 5 ms per keyframe at 2000 keyframes, 0.5 ms without). Each
+        copy carries the plane's whole uncertainty as if it were its own, so the poses'
+        marginals come out optimistic where the frozen plane is all that holds them (measured
+        on the two-room test world: height 7 mm against 15 mm unfrozen, tilt 0.15 against 0.20
+        deg; the extrinsic's 2.5 %)."""
         anchor, plane = ANCHOR_COPY(self._copies), PLANE_COPY(self._copies)
         self._copies += 1
-        self._values.insert(anchor, pose3(T_S_A))
-        self._values.insert(plane, gtsam.OrientedPlane3(plane_A))
-        self.add(gtsam.PriorFactorPose3(anchor, pose3(T_S_A), self.build.first_pose_noise))
-        self.add(plane_prior_factor(plane_A, gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov_A)), plane))
+        # the plane prior's linearisation point is also the copy's initial value
+        point = gtsam.Values()
+        point.insert(plane, frozen.plane_A)
+        self._values.insert(point)
+        self._values.insert(anchor, frozen.T_S_A)
+        self.add(gtsam.PriorFactorPose3(anchor, frozen.T_S_A, self.build.first_pose_noise))
+        self.add(plane_prior_at(point, plane, frozen.plane_R))
         self.add(self.build.observation_of(X(k), anchor, plane, plane_C, cov))
 
     def _add_tracked(self, table: dict, key: int, factor: gtsam.NonlinearFactor) -> None:

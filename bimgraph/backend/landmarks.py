@@ -11,7 +11,7 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
-from bimgraph.geometry import inverse, plane_from_frame, plane_to_frame
+from bimgraph.geometry import inverse, plane_from_frame
 
 
 def plane_basis(n: np.ndarray) -> np.ndarray:
@@ -66,8 +66,9 @@ class Landmark:
     merged_into: int | None = None  # set when an offline round found it to be another landmark's plane
     # how the alignment uses its plane-to-BIM factor (offline GNC decides; see below)
     alignment: str = KEPT
-    # online, once frozen: (T_S_A, plane_A, cov_A) as they were; later observations use copies
-    frozen: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    # online, once frozen: its anchor and plane as they were (`graph.FrozenPlane`); later
+    # observations use copies
+    frozen: object = None
 
     def absorb(self, other: "Landmark", max_points: int) -> None:
         """Take over the observations and extent of a landmark found to be the same plane."""
@@ -156,22 +157,36 @@ class LandmarkTable:
         self.set_estimate(landmark.id, landmark.plane_A, landmark.T_S_A, landmark.cov_A)
 
     def set_estimate(self, j: int, plane_A: np.ndarray, T_S_A: np.ndarray, cov_A: np.ndarray | None = None) -> None:
-        lm = self.items[j]
-        lm.plane_A, lm.T_S_A = plane_A, T_S_A
-        if cov_A is not None:
-            lm.cov_A = cov_A
-            self.covs_A[j] = cov_A
-        self.planes_A[j] = plane_A
-        self.T_A_S[j] = inverse(T_S_A)
-        self.planes_S[j] = plane_to_frame(plane_A, self.T_A_S[j])  # lm.plane_S, without a second inverse
-        self.bases_A[j] = plane_basis(plane_A[:3])
-        self.update_sphere(j)
+        self.set_estimates([j], plane_A[None], T_S_A[None], {} if cov_A is None else {j: cov_A})
 
-    def update_sphere(self, j: int) -> None:
-        lm = self.items[j]
-        if lm.sphere_A is not None:
-            self.centres_S[j] = lm.T_S_A[:3, :3] @ lm.sphere_A + lm.T_S_A[:3, 3]
-            self.radii[j] = lm.radius
+    def set_estimates(self, js: list[int], planes_A: np.ndarray, T_S_A: np.ndarray, covs_A: dict[int, np.ndarray]) -> None:
+        """New estimates of landmarks `js` (planes in their anchors, anchor poses, stacked) and
+        of the marginals in `covs_A` (by landmark), in one pass (per landmark, numpy's calls
+        cost more than the maths)."""
+        if not js:
+            return
+        R_S_A, t_S_A = T_S_A[:, :3, :3], T_S_A[:, :3, 3]
+        R_A_S = R_S_A.transpose(0, 2, 1)
+        T_A_S = np.zeros_like(T_S_A)
+        T_A_S[:, :3, :3] = R_A_S
+        T_A_S[:, :3, 3] = -(R_A_S @ t_S_A[:, :, None])[:, :, 0]
+        T_A_S[:, 3, 3] = 1.0
+        self.planes_A[js] = planes_A
+        self.T_A_S[js] = T_A_S
+        # (`plane_to_frame(plane_A, T_A_S)`: the plane in S)
+        n_A = planes_A[:, :3]
+        self.planes_S[js] = np.concatenate([(R_S_A @ n_A[:, :, None])[:, :, 0],
+                                            planes_A[:, 3:] + (n_A * T_A_S[:, :3, 3]).sum(axis=1, keepdims=True)], axis=1)
+        for row, j in enumerate(js):
+            lm = self.items[j]
+            lm.plane_A, lm.T_S_A = planes_A[row], T_S_A[row]
+            if j in covs_A:
+                lm.cov_A = covs_A[j]
+                self.covs_A[j] = covs_A[j]
+            self.bases_A[j] = plane_basis(planes_A[row, :3])
+            if lm.sphere_A is not None:
+                self.centres_S[j] = R_S_A[row] @ lm.sphere_A + t_S_A[row]
+                self.radii[j] = lm.radius
 
 
 def observation_points(polygon, centre) -> np.ndarray:

@@ -255,9 +255,10 @@ class OfflineEstimator:
                        bim_tolerance=self.judge.tolerance, frontend_drift=self.odometry.summary() if self.cfg.offline.estimate_drift else None)
 
     def _refresh(self, values: gtsam.Values) -> None:
-        for lm in self._active():
-            self.landmarks.set_estimate(lm.id, values.atOrientedPlane3(L(lm.id)).planeCoefficients(),
-                                        values.atPose3(X(lm.anchor)).matrix())
+        active = self._active()
+        self.landmarks.set_estimates([lm.id for lm in active],
+                                     np.array([values.atOrientedPlane3(L(lm.id)).planeCoefficients() for lm in active]),
+                                     np.array([values.atPose3(X(lm.anchor)).matrix() for lm in active]), {})
 
     def _revise(self, values: gtsam.Values) -> bool:
         changed = False

@@ -20,7 +20,7 @@ from bimgraph.backend.records import Association, KeyframeResult, Listener, Resu
 from bimgraph.backend.robust_alignment import RobustAlignment
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig
-from bimgraph.geometry import inverse, normalise_plane
+from bimgraph.geometry import inverse, normalise_plane, plane_to_frame
 from bimgraph.sequence.format import Keyframe
 from factors.plane import predict_local_plane
 
@@ -128,7 +128,7 @@ class Backend:
         values = self.graph.update(self._keys_of(refresh) + [X(k), E])
         self._refresh(values, refresh, [j for j in set(observed) if self._covariance_due(j)])
 
-        if self._revise(observed, values.atPose3(E)) | self._associate(observed, values.atPose3(E)):
+        if self._revise(observed, values.atPose3(E).matrix()) | self._associate(observed, values.atPose3(E)):
             for _ in range(self.cfg.isam2.extra_updates):
                 self.graph.update()
             values = self.graph.update(self._keys_of(observed) + [X(k), E])
@@ -273,7 +273,7 @@ class Backend:
                 self._landmark_of_face[face] = j
                 self._set_face(j, face, 0.0)
         elif self.landmarks[j].frozen is not None:
-            self.graph.add_frozen_observation(k, *self.landmarks[j].frozen, obs.plane_C, obs.cov)
+            self.graph.add_frozen_observation(k, self.landmarks[j].frozen, obs.plane_C, obs.cov)
         else:
             self.graph.add(self.build.observation(k, self.landmarks[j].anchor, j, obs.plane_C, obs.cov))
         lm = self.landmarks[j]
@@ -281,7 +281,7 @@ class Backend:
                            self.cfg.slam_association.extent_max_points)
         # (its bounding sphere is recomputed by `_refresh`, which sets every observed landmark's estimate)
         if lm.frozen is None and len(lm.observations) >= self.cfg.isam2.freeze_after and not self._matchable(lm):
-            lm.frozen = (lm.T_S_A, lm.plane_A, lm.cov_A)
+            lm.frozen = self.graph.freeze(lm.T_S_A, lm.plane_A, lm.cov_A)
         return j
 
     def _matchable(self, lm: Landmark) -> bool:
@@ -300,12 +300,13 @@ class Backend:
 
     def _refresh(self, values: gtsam.Values, estimates, covariances) -> None:
         """Copy landmark estimates (and the marginals of `covariances`) from iSAM2 to the cache."""
-        cov = set(covariances)
-        for j in sorted(set(estimates) | cov):
-            lm = self.landmarks[j]
-            self.landmarks.set_estimate(j, values.atOrientedPlane3(L(j)).planeCoefficients(),
-                                        values.atPose3(X(lm.anchor)).matrix(),
-                                        self.graph.marginal(L(j)) if j in cov else None)
+        js = sorted(set(estimates) | set(covariances))
+        if not js:
+            return
+        self.landmarks.set_estimates(
+            js, np.array([values.atOrientedPlane3(L(j)).planeCoefficients() for j in js]),
+            np.array([values.atPose3(X(self.landmarks[j].anchor)).matrix() for j in js]),
+            {j: self.graph.marginal(L(j)) for j in covariances})
 
     def _set_face(self, j: int, face: str, score: float) -> None:
         lm = self.landmarks[j]
@@ -313,7 +314,7 @@ class Backend:
         self.graph.add_bim(j, lm.anchor, self.faces.planes[self.faces.row[face]], self.faces.centres[self.faces.row[face]])
         self.listener.on_association(j, face, score)
 
-    def _revise(self, observed: list[int], T_S_B: gtsam.Pose3) -> bool:
+    def _revise(self, observed: list[int], T_S_B: np.ndarray) -> bool:
         if self.oracle is not None:
             return False
         changed = False
@@ -321,7 +322,7 @@ class Backend:
             lm = self.landmarks[j]
             if lm.face is None:
                 continue
-            plane_B = predict_local_plane(T_S_B, gtsam.Pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A))
+            plane_B = plane_to_frame(self.landmarks.planes_S[j], T_S_B)  # (its estimate was just refreshed)
             reason = revision_reason(plane_B, self.faces, lm.face, self.cfg.bim_association)
             if reason is not None:
                 self._unmatch(lm, reason)

@@ -82,7 +82,8 @@ class FaceIndex:
         # each face's convex hull, since an observed extent is one, over doors and windows
         # alike (a door at a face's edge is a notch in its outline, not a hole: the hull of a
         # wall seen whole centres in the doorway)
-        self.outline = [Polygon(self.to_2d(self.rep[self.group[i]], np.asarray(f.polygon))) for i, f in enumerate(self.faces)]
+        self.outline = np.array([Polygon(self.to_2d(self.rep[self.group[i]], np.asarray(f.polygon))) for i, f in enumerate(self.faces)],
+                                dtype=object)
         self.group_outline = [shapely.union_all([self.outline[i].convex_hull for i in m]) for m in self.members]
         for poly in self.group_outline:
             shapely.prepare(poly)
@@ -102,8 +103,8 @@ class FaceIndex:
         members = self.members[group]
         if len(members) == 1:
             return self.ids[members[0]]
-        p = Point(self.to_2d(self.rep[group], point_B[None])[0])
-        return self.ids[min(members, key=lambda i: self.outline[i].distance(p))]
+        p = shapely.points(self.to_2d(self.rep[group], point_B[None])[0])
+        return self.ids[members[np.argmin(shapely.distance(self.outline[members], p))]]
 
     def observation_faces(self, face: str | None, centres_B: list[np.ndarray | None]) -> list[str | None]:
         """The face behind each observation of a landmark matched to `face` (its group)."""

@@ -5,6 +5,7 @@ match to a BIM face. The graph holds the estimates; this is the cache associatio
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import gtsam
 import numpy as np
@@ -12,6 +13,9 @@ import shapely
 from shapely.geometry import Polygon
 
 from bimgraph.geometry import inverse, plane_from_frame
+
+if TYPE_CHECKING:
+    from bimgraph.backend.graph import FrozenPlane
 
 
 def plane_basis(n: np.ndarray) -> np.ndarray:
@@ -70,7 +74,7 @@ class Landmark:
     alignment: str = KEPT
     # online, once frozen: its anchor and plane as they were (`graph.FrozenPlane`); later
     # observations use copies
-    frozen: object = None
+    frozen: "FrozenPlane | None" = None
 
     def absorb(self, other: "Landmark", max_points: int) -> None:
         """Take over the observations and extent of a landmark found to be the same plane."""

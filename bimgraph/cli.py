@@ -226,7 +226,10 @@ def run(
             from bimgraph.viewer.session import finish
 
             finish(viewer, output)
-    out.print(f"{output}: written ({mode})")
+    from bimgraph.evaluation.report import summary_table
+    from bimgraph.evaluation.runs import run_summary
+
+    out.print(summary_table(f"bimgraph run: {output}", run_summary(output)))
     if rrd is not None:
         out.print(f"recording: {rrd} (open it with: rerun {rrd})")
 

@@ -58,6 +58,12 @@ def test_run_writes_every_output(world, tmp_path, mode):
     # this world's front-end drifts as a random walk: no rate stands out
     assert summary["frontend_drift"]["rotation_deg_per_m"] == [0.0, 0.0, 0.0]
     assert summary["frontend_drift"]["translation_percent"] == [0.0, 0.0, 0.0]
+    # the terminal gets the run in a few lines, from those files
+    printed = " ".join(result.output.split())
+    for line in ("T_B_S sigma", "translation along [0.0, 0.0, 1.0]", f"keyframes │ {N}",
+                 f"{summary['matched_landmarks']} matched to {summary['matched_faces']} BIM faces",
+                 f"{sum(1 for f in json.loads((tmp_path / 'deviations.json').read_text())['faces'] if f['status'] == 'within_tolerance')} within tolerance"):
+        assert line in printed, (line, result.output)
 
 
 def test_crash_mid_run_leaves_valid_outputs(world, tmp_path):

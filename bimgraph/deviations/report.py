@@ -7,7 +7,7 @@ from __future__ import annotations
 import csv
 import io
 from pathlib import Path
-from typing import Literal
+from typing import Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -23,6 +23,7 @@ CSV_FILE = "deviations.csv"
 
 Vec3 = tuple[float, float, float]
 FaceStatus = Literal["within_tolerance", "deviating", "not_enough_evidence", "possibly_not_built"]
+FACE_STATUSES: tuple[str, ...] = get_args(FaceStatus)
 
 
 class FaceRecord(BaseModel):

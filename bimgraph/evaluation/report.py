@@ -41,3 +41,15 @@ def metrics_table(rows: list[dict]):
     for row in rows:
         table.add_row(*[_cell(fmt, row.get(key)) for key, _, fmt in present])
     return table
+
+
+def summary_table(title: str, rows: list[tuple[str, str]]):
+    """Labelled lines (`runs.run_summary`) as a two-column table."""
+    from rich.table import Table
+
+    table = Table(title=title, show_header=False)
+    table.add_column(style="bold", no_wrap=True)
+    table.add_column()
+    for label, text in rows:
+        table.add_row(label, text)
+    return table

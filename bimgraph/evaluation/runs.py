@@ -10,6 +10,7 @@ import numpy as np
 from bimgraph.backend.pipeline import initial_alignment, load_model, model_path
 from bimgraph.backend.results import ASSOCIATIONS, EXTRINSIC, SUMMARY, TRAJECTORY_BIM
 from bimgraph.config import Config
+from bimgraph.deviations.report import FACE_STATUSES, JSON_FILE as DEVIATIONS_JSON, load_deviations
 from bimgraph.errors import FormatError, InputError
 from bimgraph.evaluation.baselines import estimate_extrinsics, matched_planes
 from bimgraph.evaluation.evaluate import Estimate, evaluate
@@ -79,6 +80,41 @@ def run_timings(out_dir: Path) -> dict:
     if "latency_ms" in summary:
         out["latency_median_ms"] = summary["latency_ms"]["median"]
     return out
+
+
+def run_summary(out_dir: Path) -> list[tuple[str, str]]:
+    """What a run's files say, in a few labelled lines for the terminal (no ground truth
+    needed): keyframes, landmarks and matches, `T_B_S` with its sigmas and unobservable
+    directions, the front-end's drift, the walls' verdicts, time."""
+    out_dir = Path(out_dir)
+    summary = read_json(out_dir / SUMMARY)
+    extrinsic = read_json(out_dir / EXTRINSIC)
+    T_B_S = pose_from_tum(extrinsic["T_B_S"])
+    yaw = np.degrees(np.arctan2(T_B_S[1, 0], T_B_S[0, 0]))
+    sigma_cm = ", ".join(f"{100 * s:.1f}" for s in extrinsic["sigma_trans_m"])
+    sigma_deg = ", ".join(f"{s:.2f}" for s in extrinsic["sigma_rot_deg"])
+    unobservable = "; ".join(f"{u['kind']} along {np.round(u['axis_B'], 3).tolist()} (held at the initial alignment)"
+                             for u in extrinsic.get("unobservable", [])) or "none"
+    rows = [("mode", summary["mode"] + ("" if summary.get("finished", True) else " (stopped early: outputs up to the last keyframe written)")),
+            ("keyframes", str(summary["keyframes"])),
+            ("landmarks", f"{summary['landmarks']}, {summary['matched_landmarks']} matched to {summary['matched_faces']} BIM faces"),
+            ("T_B_S", f"position {np.round(T_B_S[:3, 3], 3).tolist()} m, heading {yaw:.2f} deg"),
+            ("T_B_S sigma", f"position {sigma_cm} cm, rotation {sigma_deg} deg"),
+            ("unobservable", unobservable)]
+    if drift := summary.get("frontend_drift"):
+        rows.append(("front-end drift", f"correction {drift['rotation_deg_per_m'][2]:+.3f} deg/m about z, "
+                                        f"{np.linalg.norm(drift['translation_percent']):.2f} % of the distance"))
+    if (out_dir / DEVIATIONS_JSON).is_file():
+        counts = load_deviations(out_dir / DEVIATIONS_JSON).counts()
+        rows.append(("walls", ", ".join(f"{counts.get(k, 0)} {k.replace('_', ' ')}" for k in FACE_STATUSES)
+                     + f"; {counts['unplanned']} unplanned planes"))
+    seconds = summary.get("timings_s", {}).get("total_s")
+    if "latency_ms" in summary:
+        latency = summary["latency_ms"]
+        rows.append(("time", f"{seconds:.1f} s, per keyframe median {latency['median']:.1f} ms, p95 {latency['p95']:.1f} ms"))
+    elif seconds is not None:
+        rows.append(("time", f"{seconds:.1f} s in {summary.get('rounds', 1)} rounds"))
+    return rows
 
 
 def write_metrics(out_dir: Path, metrics: dict) -> None:

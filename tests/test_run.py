@@ -10,6 +10,7 @@ from bimgraph.backend.synthetic import make_scene
 from bimgraph.bim.planemap import save_plane_map
 from bimgraph.cli import app
 from bimgraph.evaluation.metrics import ate
+from bimgraph.evaluation.runs import run_summary
 from bimgraph.geometry import pose_to_tum
 from bimgraph.sequence.format import InitialAlignment, Sequence, SequenceMeta, save_sequence
 from bimgraph.sequence.tum import read_tum
@@ -108,3 +109,17 @@ def test_seed_alignment_and_bad_seed(world, tmp_path):
     assert result.exit_code == 0, result.output
     result = run(root, "-o", tmp_path / "out2", "--seed", "0:99:r00S")
     assert result.exit_code == 4 and "no plane 99" in result.output
+
+
+def test_summary_lists_the_deviating_walls(world, tmp_path):
+    """The printed summary names each wall the report finds deviating, with its offset."""
+    _, root = world
+    assert run(root, "-o", tmp_path).exit_code == 0
+    path = tmp_path / "deviations.json"
+    report = json.loads(path.read_text())
+    face = next(f for f in report["faces"] if f["offset_m"] is not None)
+    face.update(status="deviating", offset_m=0.073, offset_sigma_m=0.004)
+    path.write_text(json.dumps(report))
+    rows = dict((label, text) for label, text in run_summary(tmp_path) if label == "deviating")
+    assert rows == {"deviating": f"{face['wall_name'] or face['wall_guid']} ({face['face_id']}): offset +7.3 ± 0.4 cm, "
+                                 f"tilt {face['tilt_deg']:.2f} ± {face['tilt_sigma_deg']:.2f} deg"}

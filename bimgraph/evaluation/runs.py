@@ -105,9 +105,13 @@ def run_summary(out_dir: Path) -> list[tuple[str, str]]:
         rows.append(("front-end drift", f"correction {drift['rotation_deg_per_m'][2]:+.3f} deg/m about z, "
                                         f"{np.linalg.norm(drift['translation_percent']):.2f} % of the distance"))
     if (out_dir / DEVIATIONS_JSON).is_file():
-        counts = load_deviations(out_dir / DEVIATIONS_JSON).counts()
+        deviations = load_deviations(out_dir / DEVIATIONS_JSON)
+        counts = deviations.counts()
         rows.append(("walls", ", ".join(f"{counts.get(k, 0)} {k.replace('_', ' ')}" for k in FACE_STATUSES)
                      + f"; {counts['unplanned']} unplanned planes"))
+        rows += [("deviating", f"{f.wall_name or f.wall_guid} ({f.face_id}): offset {100 * f.offset_m:+.1f} ± "
+                               f"{100 * f.offset_sigma_m:.1f} cm, tilt {f.tilt_deg:.2f} ± {f.tilt_sigma_deg:.2f} deg")
+                 for f in deviations.faces if f.status == "deviating"]
     seconds = summary.get("timings_s", {}).get("total_s")
     if "latency_ms" in summary:
         latency = summary["latency_ms"]

@@ -13,13 +13,14 @@ to the same BIM face are merged into one (the loop closures a drifting causal pa
 until a round changes nothing. Once the association settles, the robust alignment judges
 which plane-to-BIM factors the alignment keeps (`bimgraph.backend.robust_alignment`): the
 walls consistent with each other decide the extrinsic and the poses, and a wall built off
-plan is measured against them, to the tolerance the kept walls show; the rounds then go on
-until neither changes.
+plan is measured against them, to the tolerance the kept walls show. It judges on the rest of
+the graph's Gaussian marginal on the judged variables (`robust_alignment.reduced`: its many
+solves are of a few dozen variables), and the next round solves the whole graph under its
+verdicts; the rounds go on until neither changes.
 """
 
 from __future__ import annotations
 
-import functools
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -36,7 +37,7 @@ from bimgraph.backend.marginals import JointMarginals
 from bimgraph.backend.odometry import OdometryModel
 from bimgraph.backend.online import Backend, Oracle, face_misfit, observations_of, one_plane, revision_reason, unmatch
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
-from bimgraph.backend.robust_alignment import RobustAlignment
+from bimgraph.backend.robust_alignment import RobustAlignment, reduced
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig
 from bimgraph.geometry import inverse, plane_from_frame
@@ -93,7 +94,10 @@ class OfflineEstimator:
             t_assoc += time.perf_counter() - t1
             if not changed and self.cfg.offline.gnc and set(self._matches()) != set(self.judge.verdicts):
                 t2 = time.perf_counter()
-                values = self.judge.decide(self._matches(), functools.partial(self._graph, keyframes, observations), values)
+                graph_with, point = reduced(self._graph(keyframes, observations, lambda lm: None), values,
+                                            [lm for lm in self._active() if lm.face is not None])
+                values = gtsam.Values(values)
+                values.update(self.judge.decide(self._matches(), graph_with, point))
                 t_opt += time.perf_counter() - t2
                 changed = True
             if not changed:

@@ -28,6 +28,32 @@ _FREE_OFFSET_M = 100.0
 GraphWith = Callable[[Callable[[Landmark], gtsam.NonlinearFactor | None]], gtsam.NonlinearFactorGraph]
 
 
+def reduced(rest: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+            landmarks: list[Landmark]) -> tuple[GraphWith, gtsam.Values]:
+    """What `decide` needs to judge these matched landmarks, with the rest of the graph (`rest`:
+    every factor but the plane-to-BIM ones) as its Gaussian marginal at `values` on the judged
+    variables (the extrinsic, the landmarks and their anchors; `LinearContainerFactor`s), so that
+    graduated non-convexity's many solves are of a few dozen variables, not of the whole walk.
+    Returns the `GraphWith` over that marginal and the judged variables' values."""
+    keys = bim_keys(landmarks)
+    marginal = rest.linearize(values).marginal(gtsam.KeyVector(keys))
+    point = gtsam.Values()
+    for key in keys:
+        point.insert(key, values.atOrientedPlane3(key) if gtsam.Symbol(key).chr() == ord("l") else values.atPose3(key))
+    linear = gtsam.NonlinearFactorGraph()
+    for i in range(marginal.size()):
+        linear.add(gtsam.LinearContainerFactor(marginal.at(i), point))
+
+    def graph_with(bim_factor):
+        graph = gtsam.NonlinearFactorGraph(linear)
+        for lm in landmarks:
+            if (factor := bim_factor(lm)) is not None:
+                graph.add(factor)
+        return graph
+
+    return graph_with, point
+
+
 class RobustAlignment:
     def __init__(self, faces: FaceIndex, build: FactorBuilder, landmarks: LandmarkTable, cfg: OfflineConfig):
         self.faces, self.build, self.landmarks, self.cfg = faces, build, landmarks, cfg

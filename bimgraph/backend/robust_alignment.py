@@ -37,9 +37,10 @@ def reduced(rest: gtsam.NonlinearFactorGraph, values: gtsam.Values,
     Returns the `GraphWith` over that marginal and the judged variables' values."""
     keys = bim_keys(landmarks)
     marginal = rest.linearize(values).marginal(gtsam.KeyVector(keys))
+    planes = {L(lm.id) for lm in landmarks}
     point = gtsam.Values()
     for key in keys:
-        point.insert(key, values.atOrientedPlane3(key) if gtsam.Symbol(key).chr() == ord("l") else values.atPose3(key))
+        point.insert(key, values.atOrientedPlane3(key) if key in planes else values.atPose3(key))
     linear = gtsam.NonlinearFactorGraph()
     for i in range(marginal.size()):
         linear.add(gtsam.LinearContainerFactor(marginal.at(i), point))

@@ -13,9 +13,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bimgraph.backend.graph import E, L, X, joint_covariance
+from bimgraph.backend.graph import E, L, X, BatchSolver, bim_keys, joint_covariance
+from bimgraph.backend.marginals import JointMarginals
 from bimgraph.backend.offline import OfflineEstimator
-from bimgraph.backend.online import Backend
+from bimgraph.backend.online import Backend, observations_of
+from bimgraph.backend.robust_alignment import reduced
 from bimgraph.backend.synthetic import make_scene
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig, DeviationConfig
@@ -125,6 +127,25 @@ def test_offline_gnc_keeps_the_moved_wall_out_of_the_alignment(offline_runs):
     assert ate(runs[False][1].T_B_C, np.asarray(scene.T_B_C)) > 0.04
     assert ate(res.T_B_C, np.asarray(scene.T_B_C)) < 0.015
     assert extrinsic_error(res.T_B_S, scene.T_B_S)[1] < 1.5
+
+
+def test_the_judgement_sees_the_whole_graph_through_its_marginal(offline_runs):
+    """The robust alignment judges on the rest of the graph's Gaussian marginal on the judged
+    variables (`robust_alignment.reduced`): at the point it was taken, the reduced graph with
+    the plane-to-BIM factors has the whole graph's joint marginals of those variables, so the
+    tolerance estimate and the studentized tests see the same."""
+    scene, plan, runs = offline_runs
+    est, _ = runs[True]
+    observations = {kf.index: observations_of(kf, est.online.build.default_plane_cov) for kf in scene.keyframes}
+    matched = [lm for lm in est._active() if lm.face is not None]
+    whole = est._graph(scene.keyframes, observations)
+    values = BatchSolver(50, 1e-9)(whole, est.online.graph.estimate())
+    graph_with, point = reduced(est._graph(scene.keyframes, observations, lambda lm: None), values, matched)
+    small = graph_with(est.judge.judged_factor)
+    keys = bim_keys(matched)
+    assert small.size() < whole.size() / 10
+    np.testing.assert_allclose(JointMarginals(small, point, keys)(keys), JointMarginals(whole, values, keys)(keys),
+                               rtol=1e-6, atol=1e-12)
 
 
 def test_offline_gnc_measures_the_moved_wall_against_the_others(offline_runs, tmp_path):

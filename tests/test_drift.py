@@ -150,3 +150,33 @@ def test_odometry_factors_are_rebuilt_when_the_drift_or_the_noise_changes():
     tightened = model.factor(a, b)
     assert tightened is not moved
     np.testing.assert_allclose(tightened.noiseModel().sigmas(), 0.5 * moved.noiseModel().sigmas(), rtol=1e-12)
+
+
+def test_odometry_noise_estimate_reads_each_steps_joint_marginal():
+    """The noise estimate marginalises onto many steps' poses at once; the redundancies it reads
+    are those of gtsam's own joint marginal of each step's two poses."""
+    import gtsam
+
+    from bimgraph.backend.graph import X, BatchSolver, joint_covariance
+    from bimgraph.backend.odometry import _POSE_GROUPS, _STEPS_AT_ONCE
+    from bimgraph.backend.online import observations_of
+    from bimgraph.backend.tolerance import redundancy, variance_factors
+
+    scene, keyframes = biased_scene()
+    est = OfflineEstimator(scene.plane_map, BackendConfig(), scene.initial)
+    est.run(keyframes)
+    observations = {kf.index: observations_of(kf, est.online.build.default_plane_cov) for kf in keyframes}
+    graph = est._graph(keyframes, observations)
+    values = BatchSolver(50, 1e-9)(graph, est.online.graph.estimate())
+    steps = 3 * _STEPS_AT_ONCE  # spread over the walk, in three marginalisations
+    found = est.odometry.estimated_variance(keyframes, graph, values, 0.95, 0.01, steps)
+    marginals = gtsam.Marginals(graph, values)
+    pairs = list(zip(keyframes, keyframes[1:]))
+    terms = []
+    for i in np.unique(np.linspace(0, len(pairs) - 1, steps).round().astype(int)):
+        previous, kf = pairs[i]
+        A, b = est.odometry.factor(previous, kf).linearize(values).jacobian()
+        terms.append(redundancy(A, -b, joint_covariance(marginals, [X(previous.index), X(kf.index)])))
+    expected = np.clip(est.odometry.variance * variance_factors(terms, 0.95, _POSE_GROUPS), 0.01**2, 1.0)
+    np.testing.assert_allclose(found, expected, rtol=1e-9)
+    assert (found < 1.0).all()  # the smoothed steps do say something

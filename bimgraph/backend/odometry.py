@@ -78,7 +78,8 @@ class OdometryModel:
 
     def step_sigmas(self, keyframes: list[Keyframe]) -> tuple[float, float]:
         """The noise per step and axis, rotation (rad) and translation (m), on average."""
-        diag = np.mean([np.diag(self._given_cov(kf)) for kf in keyframes[1:]], axis=0) * np.repeat(self.variance, 3)
+        diag = np.array([self._given_cov(kf) for kf in keyframes[1:]]).diagonal(axis1=1, axis2=2).mean(axis=0) \
+            * np.repeat(self.variance, 3)
         return float(np.sqrt(diag[:3].mean())), float(np.sqrt(diag[3:].mean()))
 
     def estimated_variance(self, keyframes: list[Keyframe], graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,

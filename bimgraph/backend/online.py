@@ -202,7 +202,7 @@ class Backend:
         """Fit the front-end's drift rates to the estimate so far; if they changed, queue every
         odometry factor again without them (`bimgraph.backend.drift`; no extrapolation here,
         since the graph grows between fits). Whether they changed."""
-        estimate = self.graph.estimate()
+        estimate = self.graph.estimate([X(kf.index) for kf in self._keyframes])  # (not the frozen copies)
         cfg = self.cfg.offline
         fitted = drift.estimate([self.odometry.pose(kf) for kf in self._keyframes],
                                 [estimate.atPose3(X(kf.index)).matrix() for kf in self._keyframes],

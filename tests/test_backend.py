@@ -463,3 +463,31 @@ def test_a_landmarks_plane_to_bim_factor_is_replaced_and_left_out_of_the_batch_g
     graph.update()
     assert 0 not in graph.bim_index and graph.without_bim().size() == 3
     graph.remove_bim(0)  # nothing there: no error
+
+
+def test_offline_splits_a_landmark_per_section_in_the_order_it_saw_them():
+    """A landmark whose observations lie on several sections of a wall becomes one per section,
+    numbered in the order of their first observations: by a set of face ids, runs differed
+    with Python's string hashing."""
+    from bimgraph.backend.graph import E, L, X
+    from bimgraph.backend.offline import OfflineEstimator
+
+    scene = make_scene(10, rooms=(3, 1), seed=1)
+    est = OfflineEstimator(scene.plane_map, BackendConfig(), scene.initial)
+    faces = {f.id: f for f in scene.plane_map.faces}
+    T_S_B = inverse(scene.initial.T_B_S)
+    values = gtsam.Values()
+    values.insert(E, gtsam.Pose3(T_S_B))
+    order = ["r20S", "r00S", "r20S", "r10S", "r20S"]  # first seen: r20S, r00S, r10S
+    for k in range(len(order)):
+        values.insert(X(k), gtsam.Pose3(np.eye(4)))
+    plane_S = plane_from_frame(np.array([*faces["r10S"].normal, faces["r10S"].offset]), scene.initial.T_B_S)
+    lm = Landmark(0, 0, plane_S, np.eye(3) * 1e-4, np.eye(4), face="r10S")
+    for k, face in enumerate(order):
+        centre_S = T_S_B[:3, :3] @ np.asarray(faces[face].centre) + T_S_B[:3, 3]
+        lm.add_observation(k, 0, centre_S[None], None, 16)
+    est.landmarks.add(lm)
+    values.insert(L(0), gtsam.OrientedPlane3(plane_S))
+    assert est._split(values)
+    assert [(x.face, [k for k, _ in x.observations]) for x in est.landmarks.items] == [
+        ("r20S", [0, 2, 4]), ("r00S", [1]), ("r10S", [3])]

@@ -50,9 +50,9 @@ class OfflineEstimator:
                  listener: Listener | None = None, oracle: Oracle | None = None):
         self.cfg = cfg
         self.listener = listener or Listener()
-        # the causal pass reports nothing (the listener hears the smoothed results) and leaves
-        # the drift and the robust alignment to the rounds
-        self.online = Backend(plane_map, cfg, initial, None, oracle, covariance=False, drift_every=0, judge_every=0)
+        # the causal pass makes no results (`Backend.advance`; the listener hears the smoothed
+        # ones) and leaves the drift and the robust alignment to the rounds
+        self.online = Backend(plane_map, cfg, initial, None, oracle, drift_every=0, judge_every=0)
         self.faces, self.bim, self.landmarks = self.online.faces, self.online.bim, self.online.landmarks
         self.oracle = oracle
         self.judge = RobustAlignment(self.faces, self.online.build, self.landmarks, cfg.offline)
@@ -64,7 +64,7 @@ class OfflineEstimator:
     def run(self, keyframes: list[Keyframe]) -> Results:
         start = time.perf_counter()
         for kf in keyframes:
-            self.online.process(kf)
+            self.online.advance(kf)
         timings = {"online_pass_s": time.perf_counter() - start}
         values = self.online.graph.estimate()
         observations = {kf.index: observations_of(kf, self.online.build.default_plane_cov) for kf in keyframes}
@@ -178,7 +178,9 @@ class OfflineEstimator:
             if lm.face is None or len(counts) == 1:
                 continue
             lm.face = counts.most_common(1)[0][0]
-            for face in set(counts) - {lm.face}:
+            # (in order of first observation: iterating a set of face ids would number the new
+            # landmarks by Python's string hashing, so that runs differed)
+            for face in [f for f in counts if f != lm.face]:
                 moved = [n for n, f in enumerate(faces) if f == face]
                 anchor = lm.observations[moved[0]][0]
                 T_S_A = values.atPose3(X(anchor)).matrix()

@@ -118,6 +118,22 @@ class Backend:
     def process(self, kf: Keyframe) -> KeyframeResult:
         start = time.perf_counter()
         isam2_before = self.graph.update_seconds
+        observations, observed, values = self.advance(kf)
+        T_S_C = values.atPose3(X(kf.index)).matrix()
+        T_S_B = values.atPose3(E)
+        T_B_S = T_S_B.inverse().matrix()
+        cov = cov_T_B_S(T_S_B, self.graph.marginal(E)) + self.locked_cov if self.covariance else np.full((6, 6), np.nan)
+        result = KeyframeResult(
+            index=kf.index, stamp=kf.stamp, T_S_C=T_S_C, T_B_C=T_B_S @ T_S_C, T_B_S=T_B_S, cov_T_B_S=cov,
+            associations=[Association(obs.index, j, self._face_of(j, T_B_S)) for obs, j in zip(observations, observed)],
+            latency_s=time.perf_counter() - start, isam2_s=self.graph.update_seconds - isam2_before, keyframe=kf)
+        self.listener.on_keyframe(result)
+        return result
+
+    def advance(self, kf: Keyframe) -> tuple[list[Observation], list[int], gtsam.Values]:
+        """The keyframe into the graph, associated and updated, without a result (for a caller
+        that reads none: the offline estimator's causal pass). Returns its observations, the
+        landmark each went to, and the estimates of its pose, the extrinsic and those landmarks."""
         k = kf.index
         T_S_C_guess = self._add_pose(kf)
         observations = observations_of(kf, self.build.default_plane_cov)
@@ -138,18 +154,8 @@ class Backend:
             values = self._update_everything(k)
         if self.judge_every and self._count % self.judge_every == 0 and self._judge():
             values = self._update_everything(k)
-
-        T_S_C = values.atPose3(X(k)).matrix()
-        T_S_B = values.atPose3(E)
-        T_B_S = T_S_B.inverse().matrix()
-        self._previous = (kf, T_S_C)
-        cov = cov_T_B_S(T_S_B, self.graph.marginal(E)) + self.locked_cov if self.covariance else np.full((6, 6), np.nan)
-        result = KeyframeResult(
-            index=k, stamp=kf.stamp, T_S_C=T_S_C, T_B_C=T_B_S @ T_S_C, T_B_S=T_B_S, cov_T_B_S=cov,
-            associations=[Association(obs.index, j, self._face_of(j, T_B_S)) for obs, j in zip(observations, observed)],
-            latency_s=time.perf_counter() - start, isam2_s=self.graph.update_seconds - isam2_before, keyframe=kf)
-        self.listener.on_keyframe(result)
-        return result
+        self._previous = (kf, values.atPose3(X(k)).matrix())
+        return observations, observed, values
 
     def _update_everything(self, k: int) -> gtsam.Values:
         """Apply what was queued for the whole graph (every odometry factor, every plane-to-BIM

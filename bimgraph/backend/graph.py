@@ -163,6 +163,13 @@ class FrozenPlane:
     plane_A: gtsam.OrientedPlane3
     plane_R: np.ndarray
 
+    @classmethod
+    def of(cls, T_S_A: np.ndarray, plane_A: np.ndarray, cov_A: np.ndarray) -> FrozenPlane:
+        """A landmark's plane `plane_A` (covariance `cov_A`) of the anchor pose `T_S_A`, as they
+        are now."""
+        return cls(pose3(T_S_A), gtsam.OrientedPlane3(normalise_plane(plane_A)),
+                   gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov_A)).R())
+
 
 class IncrementalGraph:
     """iSAM2 over the graph. Factors and new values are queued, then `update` applies them."""
@@ -196,12 +203,6 @@ class IncrementalGraph:
 
     def insert_plane(self, j: int, plane: np.ndarray) -> None:
         self._values.insert(L(j), gtsam.OrientedPlane3(plane))
-
-    def freeze(self, T_S_A: np.ndarray, plane_A: np.ndarray, cov_A: np.ndarray) -> FrozenPlane:
-        """A landmark's plane `plane_A` (covariance `cov_A`) of the anchor pose `T_S_A`, as they
-        are now, for `add_frozen_observation`."""
-        return FrozenPlane(pose3(T_S_A), gtsam.OrientedPlane3(normalise_plane(plane_A)),
-                           gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov_A)).R())
 
     def add_frozen_observation(self, k: int, frozen: FrozenPlane, plane_C: np.ndarray, cov) -> None:
         """Keyframe k sees a frozen landmark. Its anchor and plane enter as copies of their own,

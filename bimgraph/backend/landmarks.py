@@ -5,17 +5,14 @@ match to a BIM face. The graph holds the estimates; this is the cache associatio
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import gtsam
 import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
+from bimgraph.backend.graph import FrozenPlane, L, X
 from bimgraph.geometry import inverse, plane_from_frame
-
-if TYPE_CHECKING:
-    from bimgraph.backend.graph import FrozenPlane
 
 
 def plane_basis(n: np.ndarray) -> np.ndarray:
@@ -74,7 +71,7 @@ class Landmark:
     alignment: str = KEPT
     # online, once frozen: its anchor and plane as they were (`graph.FrozenPlane`); later
     # observations use copies
-    frozen: "FrozenPlane | None" = None
+    frozen: FrozenPlane | None = None
 
     def absorb(self, other: "Landmark", max_points: int) -> None:
         """Take over the observations and extent of a landmark found to be the same plane."""
@@ -164,6 +161,12 @@ class LandmarkTable:
 
     def set_estimate(self, j: int, plane_A: np.ndarray, T_S_A: np.ndarray, cov_A: np.ndarray | None = None) -> None:
         self.set_estimates([j], plane_A[None], T_S_A[None], {} if cov_A is None else {j: cov_A})
+
+    def read(self, values: gtsam.Values, js: list[int], covs_A: dict[int, np.ndarray] | None = None) -> None:
+        """The estimates of landmarks `js` (each plane and its anchor) from a graph's `values`,
+        and the marginals in `covs_A` (by landmark)."""
+        self.set_estimates(js, np.array([values.atOrientedPlane3(L(j)).planeCoefficients() for j in js]),
+                           np.array([values.atPose3(X(self.items[j].anchor)).matrix() for j in js]), covs_A or {})
 
     def set_estimates(self, js: list[int], planes_A: np.ndarray, T_S_A: np.ndarray, covs_A: dict[int, np.ndarray]) -> None:
         """New estimates of landmarks `js` (planes in their anchors, anchor poses, stacked) and

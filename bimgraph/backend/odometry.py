@@ -88,7 +88,7 @@ class OdometryModel:
         `values` show, between `floor`^2 and 1: variance component estimation over the
         odometry factors, as for the walls' tolerance, from at most `max_steps` steps spread
         evenly over the walk (each needs the joint marginal of its two poses: `JointMarginals`
-        onto the poses of 25 steps at a time, equal to gtsam's `Marginals` pair by pair to
+        onto the poses of `_STEPS_AT_ONCE` steps at a time, equal to gtsam's `Marginals` pair by pair to
         1e-13 and 2-3x faster on a 600-keyframe walk; all of the walk's at once would be one
         dense marginal of thousands of dimensions)."""
         steps = list(zip(keyframes, keyframes[1:]))

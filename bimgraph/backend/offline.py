@@ -83,7 +83,7 @@ class OfflineEstimator:
             marginals = JointMarginals(graph, values, bim_keys(self._active()))
             t1 = time.perf_counter()
             t_opt += t1 - t0
-            self._refresh(values)
+            self.landmarks.read(values, [lm.id for lm in self._active()])
             # a landmark spanning sections of a wall is split before any merging: compared
             # whole, a mix of sections built apart is one plane with neither, and the landmark
             # of the section alone would lose its face for good; merging waits for the next
@@ -96,7 +96,6 @@ class OfflineEstimator:
                 t2 = time.perf_counter()
                 graph_with, point = reduced(self._graph(keyframes, observations, lambda lm: None), values,
                                             [lm for lm in self._active() if lm.face is not None])
-                values = gtsam.Values(values)
                 values.update(self.judge.decide(self._matches(), graph_with, point))
                 t_opt += time.perf_counter() - t2
                 changed = True
@@ -259,12 +258,6 @@ class OfflineEstimator:
                        unobservable=self.online.unobservable_with(normals),
                        landmarks=self._active(), timings=timings, rounds=rounds, observed_planes=planes,
                        bim_tolerance=self.judge.tolerance, frontend_drift=self.odometry.summary() if self.cfg.offline.estimate_drift else None)
-
-    def _refresh(self, values: gtsam.Values) -> None:
-        active = self._active()
-        self.landmarks.set_estimates([lm.id for lm in active],
-                                     np.array([values.atOrientedPlane3(L(lm.id)).planeCoefficients() for lm in active]),
-                                     np.array([values.atPose3(X(lm.anchor)).matrix() for lm in active]), {})
 
     def _revise(self, values: gtsam.Values) -> bool:
         changed = False

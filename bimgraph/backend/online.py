@@ -13,7 +13,7 @@ from bimgraph.backend.alignment import Alignment, levelled, lock_directions, unl
 from bimgraph.backend.associate_bim import BimAssociator, FaceIndex, FaceMatch, candidate
 from bimgraph.backend.associate_slam import Observation, SlamAssociator, same_plane_d2
 from bimgraph.backend import drift
-from bimgraph.backend.graph import E, L, X, IncrementalGraph, bim_keys, cov_T_B_S
+from bimgraph.backend.graph import E, L, X, FrozenPlane, IncrementalGraph, bim_keys, cov_T_B_S
 from bimgraph.backend.landmarks import KEPT, Landmark, LandmarkTable, observation_points, transform_points
 from bimgraph.backend.odometry import OdometryModel
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
@@ -273,7 +273,7 @@ class Backend:
                            self.cfg.slam_association.extent_max_points)
         # (its bounding sphere is recomputed by `_refresh`, which sets every observed landmark's estimate)
         if lm.frozen is None and len(lm.observations) >= self.cfg.isam2.freeze_after and not self._matchable(lm):
-            lm.frozen = self.graph.freeze(lm.T_S_A, lm.plane_A, lm.cov_A)
+            lm.frozen = FrozenPlane.of(lm.T_S_A, lm.plane_A, lm.cov_A)
         return j
 
     def _matchable(self, lm: Landmark) -> bool:
@@ -292,13 +292,8 @@ class Backend:
 
     def _refresh(self, values: gtsam.Values, estimates, covariances) -> None:
         """Copy landmark estimates (and the marginals of `covariances`) from iSAM2 to the cache."""
-        js = sorted(set(estimates) | set(covariances))
-        if not js:
-            return
-        self.landmarks.set_estimates(
-            js, np.array([values.atOrientedPlane3(L(j)).planeCoefficients() for j in js]),
-            np.array([values.atPose3(X(self.landmarks[j].anchor)).matrix() for j in js]),
-            {j: self.graph.marginal(L(j)) for j in covariances})
+        self.landmarks.read(values, sorted(set(estimates) | set(covariances)),
+                            {j: self.graph.marginal(L(j)) for j in covariances})
 
     def _set_face(self, j: int, face: str, score: float) -> None:
         lm = self.landmarks[j]

@@ -1,5 +1,6 @@
 """Evaluation from files: a run's output folder and a simulated sequence in, `metrics.json`
-and a table out. The I/O side of `evaluate` and `baselines`."""
+and a table out. The I/O side of `evaluate` and `baselines`; and what a run's folder says
+without ground truth (`run_summary`, printed by `bimgraph run`)."""
 
 from __future__ import annotations
 

@@ -4,17 +4,13 @@ plane map, a camera circling each room, noisy plane observations, a drifting fro
 import gtsam
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
-from bimgraph.backend import (Alignment, BimAssociator, FaceIndex, Listener, align_from_seeds,
-                              planes_in_B_independent, run_offline, run_online, unobservable_directions)
-from bimgraph.backend.associate_slam import Observation, mahalanobis_to_landmarks
-from bimgraph.backend.landmarks import Landmark, LandmarkTable
+from bimgraph.backend import BimAssociator, FaceIndex, Listener, planes_in_B_independent, run_offline, run_online
+from bimgraph.backend.landmarks import Landmark
 from bimgraph.backend.synthetic import make_scene
 from bimgraph.config import BackendConfig
 from bimgraph.evaluation.metrics import association_scores, ate, extrinsic_error
-from bimgraph.geometry import exp_se3, inverse, make_pose, normalise_plane, plane_from_frame, plane_to_frame
-from factors import local_plane_error
+from bimgraph.geometry import exp_se3, inverse, make_pose, plane_from_frame
 
 
 @pytest.fixture(scope="module")
@@ -140,45 +136,6 @@ def test_corridor_runs_and_reports_unobservable(cfg):
     assert ("translation", (1.0, 0.0, 0.0)) in {(u["kind"], tuple(np.round(u["axis_B"], 6))) for u in offline.unobservable}
 
 
-def test_unobservable_directions():
-    assert unobservable_directions(np.eye(3), 10.0) == []
-    two = unobservable_directions([[1, 0, 0], [0, 1, 0]], 10.0)
-    assert two == [{"kind": "translation", "axis_B": [0.0, 0.0, 1.0]}]
-    one = unobservable_directions([[1, 0, 0], [-1, 0, 0]], 10.0)
-    assert {(u["kind"], tuple(np.abs(u["axis_B"]))) for u in one} == {
-        ("rotation", (1.0, 0.0, 0.0)), ("translation", (0.0, 1.0, 0.0)), ("translation", (0.0, 0.0, 1.0))}
-    # nearly parallel normals (5 deg apart) do not count as independent
-    near = unobservable_directions([[1, 0, 0], [np.cos(0.087), np.sin(0.087), 0], [0, 0, 1]], 10.0)
-    assert any(u["kind"] == "translation" for u in near)
-    # a corridor's turn about its axis is a tilt: gravity observes it
-    corridor = unobservable_directions([[1, 0, 0], [-1, 0, 0]], 10.0, gravity=True)
-    assert {(u["kind"], tuple(np.abs(u["axis_B"]))) for u in corridor} == {
-        ("translation", (0.0, 1.0, 0.0)), ("translation", (0.0, 0.0, 1.0))}
-
-
-def test_slam_gate_is_the_plane_factor_residual():
-    """The vectorised Mahalanobis distance equals the one built from the factor's residual
-    and Jacobian in `factors`."""
-    rng = np.random.default_rng(2)
-    table = LandmarkTable()
-    T_S_C = exp_se3(rng.normal(size=6) * 0.5)
-    for j in range(4):
-        T_S_A = exp_se3(rng.normal(size=6) * 0.5)
-        plane_A = normalise_plane(rng.normal(size=4))
-        cov_A = np.diag(rng.uniform(1e-5, 1e-3, 3))
-        table.add(Landmark(j, j, plane_A, cov_A, T_S_A))
-    observations = [Observation(i, normalise_plane(plane_from_frame(table[i].plane_S, inverse(T_S_C)) + rng.normal(size=4) * 0.02),
-                                np.diag(rng.uniform(1e-4, 3e-4, 3)), np.zeros((0, 3))) for i in range(2)]
-    pairs = (np.repeat([0, 1], 4), np.tile(np.arange(4), 2))
-    d2 = mahalanobis_to_landmarks(observations, T_S_C, table, pairs)
-    for i, j, d2_ij in zip(*pairs, d2):
-        lm, obs = table[j], observations[i]
-        e, (_, _, H_L) = local_plane_error(gtsam.Pose3(T_S_C), gtsam.Pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A),
-                                           obs.plane_C, jacobians=True)
-        S = H_L @ lm.cov_A @ H_L.T + obs.cov
-        assert d2_ij == pytest.approx(e @ np.linalg.solve(S, e), rel=1e-9)
-
-
 def test_bim_association_alone(scene, cfg):
     """The association baselines reuse: planes in S with covariances and a T_B_S estimate."""
     faces = FaceIndex(scene.plane_map, cfg.bim_association)
@@ -205,174 +162,6 @@ def test_bim_association_alone(scene, cfg):
     candidates = planes_in_B_independent(T_B_S, cov_T_B_S, np.array(planes_S), covs, extents_S, [4.0] * len(planes_S))
     matches = {m.landmark: m.face for m in bim.match(candidates)}
     assert matches == {0: "r00N", 1: "r00E", 2: "r11W"}
-
-
-def test_ambiguous_faces_wait_for_the_extent():
-    """Two nearly coplanar faces (2 cm apart, side by side) and a landmark without extent: no
-    match (ambiguous) until its extent tells them apart."""
-    from bimgraph.backend.associate_bim import PlaneInB
-    from bimgraph.bim.planemap import BimFace, PlaneMap
-
-    def face(name, x0, y):
-        poly = [(x0, y, 0.0), (x0 + 4, y, 0.0), (x0 + 4, y, 3.0), (x0, y, 3.0)]
-        return BimFace(id=name, wall_guid=name, normal=(0, 1, 0), offset=-y, polygon=poly)
-
-    cfg = BackendConfig().bim_association
-    plane_map = PlaneMap(faces=[face("a", 0.0, 0.0), face("b", 4.3, 0.02)])
-    bim = BimAssociator(FaceIndex(plane_map, cfg), cfg)
-    plane = np.array([0.0, 1.0, 0.0, -0.01])
-    cov = np.diag([1e-6, 1e-6, 1e-6, 1e-4])
-    assert bim.match([PlaneInB(0, plane, cov, np.zeros((0, 3)), 4.0)]) == []
-    extent = np.array([[5.0, 0.01, 0.5], [7.5, 0.01, 0.5], [7.5, 0.01, 2.5], [5.0, 0.01, 2.5]])
-    assert [m.face for m in bim.match([PlaneInB(0, plane, cov, extent, 5.0)])] == ["b"]
-
-
-def test_a_wall_seen_whole_matches_its_face_around_a_door():
-    """A door at the foot of a wall is a notch in its face's outline; the landmark of the
-    wall seen whole spans the doorway, and its centre lies in it (site 1's 3 m wall with a
-    door in the middle: matched once the filters take each face's convex hull)."""
-    from bimgraph.backend.associate_bim import PlaneInB
-    from bimgraph.bim.planemap import BimFace, PlaneMap
-
-    cfg = BackendConfig().bim_association
-    u_shape = [(0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (1.0, 0.0, 2.1), (2.0, 0.0, 2.1), (2.0, 0.0, 0.0),
-               (3.0, 0.0, 0.0), (3.0, 0.0, 3.2), (0.0, 0.0, 3.2)]
-    faces = FaceIndex(PlaneMap(faces=[BimFace(id="a", wall_guid="a", normal=(0, 1, 0), offset=0.0, polygon=u_shape)]), cfg)
-    extent = np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0], [3.0, 0.0, 3.2], [0.0, 0.0, 3.2]])
-    plane = np.array([0.0, 1.0, 0.0, 0.0])
-    matches = BimAssociator(faces, cfg).match([PlaneInB(0, plane, np.diag([1e-6] * 4), extent, 9.6)])
-    assert [m.face for m in matches] == ["a"]
-
-
-def _one_wall(cfg):
-    """One wall face (y = 0, normal +y, 4 m by 3 m) and a plane 5 cm before its centre turned
-    by `deg` about `axis` (the plane, as a function)."""
-    from bimgraph.bim.planemap import BimFace, PlaneMap
-
-    poly = [(0.0, 0.0, 0.0), (4.0, 0.0, 0.0), (4.0, 0.0, 3.0), (0.0, 0.0, 3.0)]
-    faces = FaceIndex(PlaneMap(faces=[BimFace(id="a", wall_guid="a", normal=(0, 1, 0), offset=0.0, polygon=poly)]), cfg)
-    centre = np.array([2.0, 0.05, 1.5])
-
-    def turned(axis, deg):
-        n = gtsam.Rot3.Rodrigues(np.asarray(axis, dtype=float) * np.radians(deg)).matrix() @ np.array([0.0, 1.0, 0.0])
-        return np.r_[n, -n @ centre]
-
-    return faces, turned
-
-
-def test_a_plane_leaning_out_of_plumb_is_no_wall():
-    """The gate's as-built tolerance: a plane turned 3 degrees about the vertical, 5 cm off,
-    may be its wall (built off its line, or the extrinsic's heading); one leaning 3 degrees out
-    of plumb about its centre line (a board on the wall) is not."""
-    from bimgraph.backend.associate_bim import PlaneInB
-
-    cfg = BackendConfig().bim_association
-    faces, turned = _one_wall(cfg)
-    bim = BimAssociator(faces, cfg)
-    extent = np.array([[0.5, 0.05, 0.5], [3.5, 0.05, 0.5], [3.5, 0.05, 2.5], [0.5, 0.05, 2.5]])
-    cov = np.diag([1e-6, 1e-6, 1e-6, 1e-6])
-    for axis, matched in (([0, 0, 1], True), ([1, 0, 0], False)):
-        assert (len(bim.match([PlaneInB(0, turned(axis, 3.0), cov, extent, 6.0)])) == 1) is matched
-
-
-def test_a_landmark_no_face_could_take_costs_no_joint_marginal():
-    """The BIM association reads a landmark's joint marginal (the costly part) only if some
-    face within the normal angle passes the geometric filters: a plane across the wall, or
-    one far beyond its ends, is no candidate whatever its covariance."""
-    from bimgraph.backend.associate_bim import candidate
-
-    cfg = BackendConfig().bim_association
-    faces, turned = _one_wall(cfg)
-    bim = BimAssociator(faces, cfg)
-    extent = np.array([[0.5, 0.05, 0.5], [3.5, 0.05, 0.5], [3.5, 0.05, 2.5], [0.5, 0.05, 2.5]])
-    assert bim.may_match(turned([0, 0, 1], 0.0), extent, 6.0)
-    assert not bim.may_match(turned([0, 0, 1], 90.0), extent, 6.0)
-    assert not bim.may_match(turned([0, 0, 1], 0.0), extent + [10.0, 0.0, 0.0], 6.0)
-
-    def no_joint(keys):
-        raise AssertionError("joint marginal read")
-
-    T_S_B = gtsam.Pose3()
-    lm = Landmark(0, 0, turned([0, 0, 1], 90.0), np.eye(3) * 1e-6, np.eye(4), extent_A=extent, area=6.0)
-    assert candidate(lm, T_S_B, no_joint, bim) is None
-    lm.plane_A = turned([0, 0, 1], 0.0)
-    assert candidate(lm, T_S_B, lambda keys: np.eye(15) * 1e-8, bim).landmark == 0
-
-
-def test_a_match_leaning_out_of_plumb_is_revised():
-    """A matched landmark that leans 2.7 deg out of its face's plumb (a board on the wall) loses
-    the match; one leaning 2 deg (a wall built out of plumb) or turned 2.9 deg about the vertical
-    keeps it."""
-    from bimgraph.backend.online import revision_reason
-
-    cfg = BackendConfig().bim_association
-    faces, turned = _one_wall(cfg)
-    assert revision_reason(turned([1, 0, 0], 2.7), faces, "a", cfg).startswith("leaning")
-    assert revision_reason(turned([1, 0, 0], 2.0), faces, "a", cfg) is None
-    assert revision_reason(turned([0, 0, 1], 2.9), faces, "a", cfg) is None
-
-
-def test_align_from_seeds(cfg):
-    rng = np.random.default_rng(4)
-    T_B_S = exp_se3(np.r_[rng.normal(size=3) * 0.3, rng.normal(size=3) * 2])
-    planes_B = np.array([[1, 0, 0, -2.0], [0, 1, 0, 1.0], [0, -1, 0, 3.0], [0, 0, 1, 0.0]])
-    planes_S = np.array([plane_from_frame(p, inverse(T_B_S)) for p in planes_B])
-    prior = Alignment.from_sigmas(T_B_S @ exp_se3(np.r_[0, 0, 0.05, 0.3, 0.2, 0.1]), 5.0, 0.5)
-    full = align_from_seeds(planes_S, planes_B, cfg, prior)
-    np.testing.assert_allclose(full.T_B_S, T_B_S, atol=1e-6)
-    assert full.unobservable == []
-    # two parallel walls: x, z and the rotation about y are left to the prior, and reported
-    corridor = align_from_seeds(planes_S[1:3], planes_B[1:3], cfg, prior)
-    assert {u["kind"] for u in corridor.unobservable} == {"rotation", "translation"}
-    assert corridor.T_B_S[1, 3] == pytest.approx(T_B_S[1, 3], abs=0.02)
-    assert np.sqrt(corridor.cov[3:, 3:].max()) > 0.1  # still the prior's uncertainty somewhere
-
-
-def test_levelled_alignment_keeps_heading_and_pins_tilt():
-    """Gravity-aligned S and z-up B: the hand alignment loses its tilt and keeps its heading
-    and position; the tilt's uncertainty drops to the gravity error, the rest stays."""
-    from bimgraph.backend.alignment import levelled
-
-    yaw, tilt = np.radians(30.0), np.radians(1.5)
-    T_B_S = make_pose(Rotation.from_rotvec([tilt, 0.0, 0.0]).as_matrix() @ Rotation.from_rotvec([0, 0, yaw]).as_matrix(),
-                      np.array([3.0, -2.0, 1.2]))
-    level = levelled(Alignment.from_sigmas(T_B_S, 2.0, 0.2), np.radians(0.1))
-    R = level.T_B_S[:3, :3]
-    np.testing.assert_allclose(R[:, 2], [0, 0, 1], atol=1e-12)
-    assert np.arctan2(R[1, 0], R[0, 0]) == pytest.approx(yaw, abs=np.radians(0.05))
-    np.testing.assert_allclose(level.T_B_S[:3, 3], T_B_S[:3, 3])
-    sigmas = np.sqrt(np.diag(level.cov))
-    np.testing.assert_allclose(np.degrees(sigmas[:2]), 0.1, rtol=0.01)
-    assert np.degrees(sigmas[2]) == pytest.approx(2.0)
-    np.testing.assert_allclose(sigmas[3:], 0.2)
-    assert level.gravity_aligned
-
-
-def test_same_plane_d2_of_two_landmarks():
-    """Two landmarks as one plane: zero for one wall seen from two anchors, and an offset
-    apart by 3 sigma (of either landmark's offset, or of an anchor's position along the
-    normal) scores 9; one anchor for both takes the 3-key layout."""
-    from bimgraph.backend.associate_slam import same_plane_d2
-
-    rng = np.random.default_rng(2)
-    wall_S = normalise_plane(np.r_[1.0, 0.2, 0.0, -3.0])
-    T_S_A1, T_S_A2 = exp_se3(rng.normal(size=6)), exp_se3(rng.normal(size=6))
-    plane_1, plane_2 = plane_to_frame(wall_S, T_S_A1), plane_to_frame(wall_S, T_S_A2)
-    shifted_2 = plane_2 + np.r_[0, 0, 0, 0.03]
-    cov = np.eye(18) * 1e-12
-    assert same_plane_d2(plane_1, T_S_A1, plane_2, T_S_A2, cov + np.eye(18) * 1e-4) == pytest.approx(0.0, abs=1e-9)
-    for index in (14, 17):  # offset of landmark 2, of landmark 1
-        c = cov.copy()
-        c[index, index] = 0.01**2
-        assert same_plane_d2(plane_1, T_S_A1, shifted_2, T_S_A2, c) == pytest.approx(9.0, rel=1e-3)
-    # anchor 1's position along the wall normal (gtsam's translation is in the anchor's frame)
-    c = cov.copy()
-    u = np.r_[np.zeros(3), T_S_A1[:3, :3].T @ wall_S[:3]]
-    c[:6, :6] += np.outer(u, u) * 0.01**2
-    assert same_plane_d2(plane_1, T_S_A1, shifted_2, T_S_A2, c) == pytest.approx(9.0, rel=1e-3)
-    one_anchor = np.eye(12) * 1e-12
-    one_anchor[11, 11] = 0.01**2
-    assert same_plane_d2(plane_1, T_S_A1, plane_1 + np.r_[0, 0, 0, 0.03], T_S_A1, one_anchor) == pytest.approx(9.0, rel=1e-3)
 
 
 def _scene_with_a_board(seed: int, foot: float = 0.12, top: float = 0.05):

@@ -7,7 +7,7 @@ from scipy.spatial.transform import Rotation
 from bimgraph.backend.alignment import Alignment
 from bimgraph.config import Config
 from bimgraph.evaluation.baselines import MatchedPlane, PlaneRegistration, estimate_extrinsics
-from bimgraph.geometry import inverse, make_pose, plane_to_frame
+from bimgraph.geometry import make_pose, plane_to_frame
 from bimgraph.sequence.format import Keyframe
 
 T_B_S_TRUE = make_pose(Rotation.from_euler("zyx", [25, 1, -2], degrees=True).as_matrix(), [3.0, -1.5, 0.2])

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from bimgraph.bim.planemap import PlaneMap, load_plane_map, polygon_area_centre, save_plane_map
+from bimgraph.bim.planemap import load_plane_map, polygon_area_centre, save_plane_map
 from bimgraph.errors import FormatError, InputError
 from bimgraph.sequence.format import iter_keyframes, load_sequence
 

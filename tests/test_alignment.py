@@ -1,0 +1,67 @@
+"""The initial alignment (seed pairs, levelling) and the directions of T_B_S that matched faces
+leave unobservable."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from bimgraph.backend import Alignment, align_from_seeds, unobservable_directions
+from bimgraph.config import BackendConfig
+from bimgraph.geometry import exp_se3, inverse, make_pose, plane_from_frame
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return BackendConfig()
+
+
+def test_unobservable_directions():
+    assert unobservable_directions(np.eye(3), 10.0) == []
+    two = unobservable_directions([[1, 0, 0], [0, 1, 0]], 10.0)
+    assert two == [{"kind": "translation", "axis_B": [0.0, 0.0, 1.0]}]
+    one = unobservable_directions([[1, 0, 0], [-1, 0, 0]], 10.0)
+    assert {(u["kind"], tuple(np.abs(u["axis_B"]))) for u in one} == {
+        ("rotation", (1.0, 0.0, 0.0)), ("translation", (0.0, 1.0, 0.0)), ("translation", (0.0, 0.0, 1.0))}
+    # nearly parallel normals (5 deg apart) do not count as independent
+    near = unobservable_directions([[1, 0, 0], [np.cos(0.087), np.sin(0.087), 0], [0, 0, 1]], 10.0)
+    assert any(u["kind"] == "translation" for u in near)
+    # a corridor's turn about its axis is a tilt: gravity observes it
+    corridor = unobservable_directions([[1, 0, 0], [-1, 0, 0]], 10.0, gravity=True)
+    assert {(u["kind"], tuple(np.abs(u["axis_B"]))) for u in corridor} == {
+        ("translation", (0.0, 1.0, 0.0)), ("translation", (0.0, 0.0, 1.0))}
+
+
+def test_align_from_seeds(cfg):
+    rng = np.random.default_rng(4)
+    T_B_S = exp_se3(np.r_[rng.normal(size=3) * 0.3, rng.normal(size=3) * 2])
+    planes_B = np.array([[1, 0, 0, -2.0], [0, 1, 0, 1.0], [0, -1, 0, 3.0], [0, 0, 1, 0.0]])
+    planes_S = np.array([plane_from_frame(p, inverse(T_B_S)) for p in planes_B])
+    prior = Alignment.from_sigmas(T_B_S @ exp_se3(np.r_[0, 0, 0.05, 0.3, 0.2, 0.1]), 5.0, 0.5)
+    full = align_from_seeds(planes_S, planes_B, cfg, prior)
+    np.testing.assert_allclose(full.T_B_S, T_B_S, atol=1e-6)
+    assert full.unobservable == []
+    # two parallel walls: x, z and the rotation about y are left to the prior, and reported
+    corridor = align_from_seeds(planes_S[1:3], planes_B[1:3], cfg, prior)
+    assert {u["kind"] for u in corridor.unobservable} == {"rotation", "translation"}
+    assert corridor.T_B_S[1, 3] == pytest.approx(T_B_S[1, 3], abs=0.02)
+    assert np.sqrt(corridor.cov[3:, 3:].max()) > 0.1  # still the prior's uncertainty somewhere
+
+
+def test_levelled_alignment_keeps_heading_and_pins_tilt():
+    """Gravity-aligned S and z-up B: the hand alignment loses its tilt and keeps its heading
+    and position; the tilt's uncertainty drops to the gravity error, the rest stays."""
+    from bimgraph.backend.alignment import levelled
+
+    yaw, tilt = np.radians(30.0), np.radians(1.5)
+    T_B_S = make_pose(Rotation.from_rotvec([tilt, 0.0, 0.0]).as_matrix() @ Rotation.from_rotvec([0, 0, yaw]).as_matrix(),
+                      np.array([3.0, -2.0, 1.2]))
+    level = levelled(Alignment.from_sigmas(T_B_S, 2.0, 0.2), np.radians(0.1))
+    R = level.T_B_S[:3, :3]
+    np.testing.assert_allclose(R[:, 2], [0, 0, 1], atol=1e-12)
+    assert np.arctan2(R[1, 0], R[0, 0]) == pytest.approx(yaw, abs=np.radians(0.05))
+    np.testing.assert_allclose(level.T_B_S[:3, 3], T_B_S[:3, 3])
+    sigmas = np.sqrt(np.diag(level.cov))
+    np.testing.assert_allclose(np.degrees(sigmas[:2]), 0.1, rtol=0.01)
+    assert np.degrees(sigmas[2]) == pytest.approx(2.0)
+    np.testing.assert_allclose(sigmas[3:], 0.2)
+    assert level.gravity_aligned

@@ -1,0 +1,173 @@
+"""Association on hand-made planes and faces: the SLAM side's gate and the BIM side's gate,
+filters, ambiguity and revision."""
+
+import gtsam
+import numpy as np
+import pytest
+
+from bimgraph.backend import BimAssociator, FaceIndex
+from bimgraph.backend.associate_slam import Observation, mahalanobis_to_landmarks
+from bimgraph.backend.landmarks import Landmark, LandmarkTable
+from bimgraph.config import BackendConfig
+from bimgraph.geometry import exp_se3, inverse, normalise_plane, plane_from_frame, plane_to_frame
+from factors import local_plane_error
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return BackendConfig()
+
+
+def test_slam_gate_is_the_plane_factor_residual():
+    """The vectorised Mahalanobis distance equals the one built from the factor's residual
+    and Jacobian in `factors`."""
+    rng = np.random.default_rng(2)
+    table = LandmarkTable()
+    T_S_C = exp_se3(rng.normal(size=6) * 0.5)
+    for j in range(4):
+        T_S_A = exp_se3(rng.normal(size=6) * 0.5)
+        plane_A = normalise_plane(rng.normal(size=4))
+        cov_A = np.diag(rng.uniform(1e-5, 1e-3, 3))
+        table.add(Landmark(j, j, plane_A, cov_A, T_S_A))
+    observations = [Observation(i, normalise_plane(plane_from_frame(table[i].plane_S, inverse(T_S_C)) + rng.normal(size=4) * 0.02),
+                                np.diag(rng.uniform(1e-4, 3e-4, 3)), np.zeros((0, 3))) for i in range(2)]
+    pairs = (np.repeat([0, 1], 4), np.tile(np.arange(4), 2))
+    d2 = mahalanobis_to_landmarks(observations, T_S_C, table, pairs)
+    for i, j, d2_ij in zip(*pairs, d2):
+        lm, obs = table[j], observations[i]
+        e, (_, _, H_L) = local_plane_error(gtsam.Pose3(T_S_C), gtsam.Pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A),
+                                           obs.plane_C, jacobians=True)
+        S = H_L @ lm.cov_A @ H_L.T + obs.cov
+        assert d2_ij == pytest.approx(e @ np.linalg.solve(S, e), rel=1e-9)
+
+
+def test_ambiguous_faces_wait_for_the_extent():
+    """Two nearly coplanar faces (2 cm apart, side by side) and a landmark without extent: no
+    match (ambiguous) until its extent tells them apart."""
+    from bimgraph.backend.associate_bim import PlaneInB
+    from bimgraph.bim.planemap import BimFace, PlaneMap
+
+    def face(name, x0, y):
+        poly = [(x0, y, 0.0), (x0 + 4, y, 0.0), (x0 + 4, y, 3.0), (x0, y, 3.0)]
+        return BimFace(id=name, wall_guid=name, normal=(0, 1, 0), offset=-y, polygon=poly)
+
+    cfg = BackendConfig().bim_association
+    plane_map = PlaneMap(faces=[face("a", 0.0, 0.0), face("b", 4.3, 0.02)])
+    bim = BimAssociator(FaceIndex(plane_map, cfg), cfg)
+    plane = np.array([0.0, 1.0, 0.0, -0.01])
+    cov = np.diag([1e-6, 1e-6, 1e-6, 1e-4])
+    assert bim.match([PlaneInB(0, plane, cov, np.zeros((0, 3)), 4.0)]) == []
+    extent = np.array([[5.0, 0.01, 0.5], [7.5, 0.01, 0.5], [7.5, 0.01, 2.5], [5.0, 0.01, 2.5]])
+    assert [m.face for m in bim.match([PlaneInB(0, plane, cov, extent, 5.0)])] == ["b"]
+
+
+def test_a_wall_seen_whole_matches_its_face_around_a_door():
+    """A door at the foot of a wall is a notch in its face's outline; the landmark of the
+    wall seen whole spans the doorway, and its centre lies in it (site 1's 3 m wall with a
+    door in the middle: matched once the filters take each face's convex hull)."""
+    from bimgraph.backend.associate_bim import PlaneInB
+    from bimgraph.bim.planemap import BimFace, PlaneMap
+
+    cfg = BackendConfig().bim_association
+    u_shape = [(0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (1.0, 0.0, 2.1), (2.0, 0.0, 2.1), (2.0, 0.0, 0.0),
+               (3.0, 0.0, 0.0), (3.0, 0.0, 3.2), (0.0, 0.0, 3.2)]
+    faces = FaceIndex(PlaneMap(faces=[BimFace(id="a", wall_guid="a", normal=(0, 1, 0), offset=0.0, polygon=u_shape)]), cfg)
+    extent = np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0], [3.0, 0.0, 3.2], [0.0, 0.0, 3.2]])
+    plane = np.array([0.0, 1.0, 0.0, 0.0])
+    matches = BimAssociator(faces, cfg).match([PlaneInB(0, plane, np.diag([1e-6] * 4), extent, 9.6)])
+    assert [m.face for m in matches] == ["a"]
+
+
+def _one_wall(cfg):
+    """One wall face (y = 0, normal +y, 4 m by 3 m) and a plane 5 cm before its centre turned
+    by `deg` about `axis` (the plane, as a function)."""
+    from bimgraph.bim.planemap import BimFace, PlaneMap
+
+    poly = [(0.0, 0.0, 0.0), (4.0, 0.0, 0.0), (4.0, 0.0, 3.0), (0.0, 0.0, 3.0)]
+    faces = FaceIndex(PlaneMap(faces=[BimFace(id="a", wall_guid="a", normal=(0, 1, 0), offset=0.0, polygon=poly)]), cfg)
+    centre = np.array([2.0, 0.05, 1.5])
+
+    def turned(axis, deg):
+        n = gtsam.Rot3.Rodrigues(np.asarray(axis, dtype=float) * np.radians(deg)).matrix() @ np.array([0.0, 1.0, 0.0])
+        return np.r_[n, -n @ centre]
+
+    return faces, turned
+
+
+def test_a_plane_leaning_out_of_plumb_is_no_wall():
+    """The gate's as-built tolerance: a plane turned 3 degrees about the vertical, 5 cm off,
+    may be its wall (built off its line, or the extrinsic's heading); one leaning 3 degrees out
+    of plumb about its centre line (a board on the wall) is not."""
+    from bimgraph.backend.associate_bim import PlaneInB
+
+    cfg = BackendConfig().bim_association
+    faces, turned = _one_wall(cfg)
+    bim = BimAssociator(faces, cfg)
+    extent = np.array([[0.5, 0.05, 0.5], [3.5, 0.05, 0.5], [3.5, 0.05, 2.5], [0.5, 0.05, 2.5]])
+    cov = np.diag([1e-6, 1e-6, 1e-6, 1e-6])
+    for axis, matched in (([0, 0, 1], True), ([1, 0, 0], False)):
+        assert (len(bim.match([PlaneInB(0, turned(axis, 3.0), cov, extent, 6.0)])) == 1) is matched
+
+
+def test_a_landmark_no_face_could_take_costs_no_joint_marginal():
+    """The BIM association reads a landmark's joint marginal (the costly part) only if some
+    face within the normal angle passes the geometric filters: a plane across the wall, or
+    one far beyond its ends, is no candidate whatever its covariance."""
+    from bimgraph.backend.associate_bim import candidate
+
+    cfg = BackendConfig().bim_association
+    faces, turned = _one_wall(cfg)
+    bim = BimAssociator(faces, cfg)
+    extent = np.array([[0.5, 0.05, 0.5], [3.5, 0.05, 0.5], [3.5, 0.05, 2.5], [0.5, 0.05, 2.5]])
+    assert bim.may_match(turned([0, 0, 1], 0.0), extent, 6.0)
+    assert not bim.may_match(turned([0, 0, 1], 90.0), extent, 6.0)
+    assert not bim.may_match(turned([0, 0, 1], 0.0), extent + [10.0, 0.0, 0.0], 6.0)
+
+    def no_joint(keys):
+        raise AssertionError("joint marginal read")
+
+    T_S_B = gtsam.Pose3()
+    lm = Landmark(0, 0, turned([0, 0, 1], 90.0), np.eye(3) * 1e-6, np.eye(4), extent_A=extent, area=6.0)
+    assert candidate(lm, T_S_B, no_joint, bim) is None
+    lm.plane_A = turned([0, 0, 1], 0.0)
+    assert candidate(lm, T_S_B, lambda keys: np.eye(15) * 1e-8, bim).landmark == 0
+
+
+def test_a_match_leaning_out_of_plumb_is_revised():
+    """A matched landmark that leans 2.7 deg out of its face's plumb (a board on the wall) loses
+    the match; one leaning 2 deg (a wall built out of plumb) or turned 2.9 deg about the vertical
+    keeps it."""
+    from bimgraph.backend.online import revision_reason
+
+    cfg = BackendConfig().bim_association
+    faces, turned = _one_wall(cfg)
+    assert revision_reason(turned([1, 0, 0], 2.7), faces, "a", cfg).startswith("leaning")
+    assert revision_reason(turned([1, 0, 0], 2.0), faces, "a", cfg) is None
+    assert revision_reason(turned([0, 0, 1], 2.9), faces, "a", cfg) is None
+
+
+def test_same_plane_d2_of_two_landmarks():
+    """Two landmarks as one plane: zero for one wall seen from two anchors, and an offset
+    apart by 3 sigma (of either landmark's offset, or of an anchor's position along the
+    normal) scores 9; one anchor for both takes the 3-key layout."""
+    from bimgraph.backend.associate_slam import same_plane_d2
+
+    rng = np.random.default_rng(2)
+    wall_S = normalise_plane(np.r_[1.0, 0.2, 0.0, -3.0])
+    T_S_A1, T_S_A2 = exp_se3(rng.normal(size=6)), exp_se3(rng.normal(size=6))
+    plane_1, plane_2 = plane_to_frame(wall_S, T_S_A1), plane_to_frame(wall_S, T_S_A2)
+    shifted_2 = plane_2 + np.r_[0, 0, 0, 0.03]
+    cov = np.eye(18) * 1e-12
+    assert same_plane_d2(plane_1, T_S_A1, plane_2, T_S_A2, cov + np.eye(18) * 1e-4) == pytest.approx(0.0, abs=1e-9)
+    for index in (14, 17):  # offset of landmark 2, of landmark 1
+        c = cov.copy()
+        c[index, index] = 0.01**2
+        assert same_plane_d2(plane_1, T_S_A1, shifted_2, T_S_A2, c) == pytest.approx(9.0, rel=1e-3)
+    # anchor 1's position along the wall normal (gtsam's translation is in the anchor's frame)
+    c = cov.copy()
+    u = np.r_[np.zeros(3), T_S_A1[:3, :3].T @ wall_S[:3]]
+    c[:6, :6] += np.outer(u, u) * 0.01**2
+    assert same_plane_d2(plane_1, T_S_A1, shifted_2, T_S_A2, c) == pytest.approx(9.0, rel=1e-3)
+    one_anchor = np.eye(12) * 1e-12
+    one_anchor[11, 11] = 0.01**2
+    assert same_plane_d2(plane_1, T_S_A1, plane_1 + np.r_[0, 0, 0, 0.03], T_S_A1, one_anchor) == pytest.approx(9.0, rel=1e-3)

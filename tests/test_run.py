@@ -6,13 +6,16 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from bimgraph.backend.online import Backend
+from bimgraph.backend.pipeline import initial_alignment, load_model
 from bimgraph.backend.synthetic import make_scene
 from bimgraph.bim.planemap import save_plane_map
 from bimgraph.cli import app
+from bimgraph.config import BackendConfig, Config
 from bimgraph.evaluation.metrics import ate
 from bimgraph.evaluation.runs import run_summary
 from bimgraph.geometry import pose_to_tum
-from bimgraph.sequence.format import InitialAlignment, Sequence, SequenceMeta, save_sequence
+from bimgraph.sequence.format import InitialAlignment, Sequence, SequenceMeta, load_sequence, save_sequence
 from bimgraph.sequence.tum import read_tum
 
 N = 60
@@ -88,7 +91,21 @@ def test_crash_mid_run_leaves_valid_outputs(world, tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["finished"] is False and summary["keyframes"] == 40
     json.loads((out / "associations.json").read_text())
-    assert json.loads((out / "extrinsic.json").read_text())["keyframe"] == 39
+    extrinsic = json.loads((out / "extrinsic.json").read_text())
+    assert extrinsic["keyframe"] == 39 and np.isfinite(extrinsic["covariance"]).all()
+
+
+def test_online_run_writes_the_covariance_the_api_gives_at_that_keyframe(world, tmp_path):
+    """`bimgraph run` skips the extrinsic's covariance per keyframe (nothing it writes reads
+    it) and asks the graph for it where it writes: the same as the Python API's per keyframe."""
+    _, root = world
+    assert run(root, "-o", tmp_path).exit_code == 0
+    written = json.loads((tmp_path / "extrinsic.json").read_text())
+    sequence = load_sequence(root)
+    backend = Backend(load_model(root / "planes.json", Config()), BackendConfig(), initial_alignment(sequence.meta, Config()))
+    last = [backend.process(kf) for kf in sequence.keyframes][-1]
+    assert written["keyframe"] == last.index
+    np.testing.assert_allclose(written["covariance"], last.cov_T_B_S, rtol=1e-9, atol=1e-15)
 
 
 def test_malformed_plane_map_is_one_line(world, tmp_path):

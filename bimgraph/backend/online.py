@@ -82,7 +82,10 @@ class Backend:
                  listener: Listener | None = None, oracle: Oracle | None = None, covariance: bool = True,
                  drift_every: int | None = None, judge_every: int | None = None):
         self.cfg = cfg
-        self.covariance = covariance  # False: results carry NaN covariances (a pass nobody reads)
+        # False: results carry NaN covariances, for callers that read it rarely
+        # (`extrinsic_covariance`): on the simulated walks the extrinsic's marginal costs iSAM2
+        # about as much as its update
+        self.covariance = covariance
         self.drift_every = cfg.isam2.drift_every if drift_every is None else drift_every
         self.judge_every = cfg.isam2.judge_every if judge_every is None else judge_every
         self.faces = FaceIndex(plane_map, cfg.bim_association)
@@ -122,7 +125,7 @@ class Backend:
         T_S_C = values.atPose3(X(kf.index)).matrix()
         T_S_B = values.atPose3(E)
         T_B_S = T_S_B.inverse().matrix()
-        cov = cov_T_B_S(T_S_B, self.graph.marginal(E)) + self.locked_cov if self.covariance else np.full((6, 6), np.nan)
+        cov = self.extrinsic_covariance(T_S_B) if self.covariance else np.full((6, 6), np.nan)
         result = KeyframeResult(
             index=kf.index, stamp=kf.stamp, T_S_C=T_S_C, T_B_C=T_B_S @ T_S_C, T_B_S=T_B_S, cov_T_B_S=cov,
             associations=[Association(obs.index, j, self._face_of(j, T_B_S)) for obs, j in zip(observations, observed)],
@@ -156,6 +159,12 @@ class Backend:
             values = self._update_everything(k)
         self._previous = (kf, values.atPose3(X(k)).matrix())
         return observations, observed, values
+
+    def extrinsic_covariance(self, T_S_B: gtsam.Pose3 | None = None) -> np.ndarray:
+        """The covariance of `T_B_S` as the graph stands (6x6, gtsam's Pose3 tangent); `T_S_B`
+        is the extrinsic's estimate, if the caller has it."""
+        T_S_B = T_S_B or self.graph.estimate([E]).atPose3(E)
+        return cov_T_B_S(T_S_B, self.graph.marginal(E)) + self.locked_cov
 
     def _update_everything(self, k: int) -> gtsam.Values:
         """Apply what was queued for the whole graph (every odometry factor, every plane-to-BIM

@@ -143,7 +143,9 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
         return results
 
     keyframes = sequence.keyframes if seeds else iter_keyframes(seq_dir)
-    backend = Backend(plane_map, cfg.backend, initial, listener, truth)
+    # the extrinsic's covariance per keyframe only for a listener (the viewer plots it); the
+    # writer asks for it when it writes
+    backend = Backend(plane_map, cfg.backend, initial, listener, truth, covariance=listener is not None)
     writer = OnlineWriter(out_dir, cfg.backend.write_every, named)
     start = time.perf_counter()
     try:

@@ -143,13 +143,24 @@ class OnlineWriter:
             return
         landmarks = backend.landmarks.items
         backend.resolve_faces(self.last.T_B_S)
-        write_json(self.out / EXTRINSIC, extrinsic_record(self.last.T_B_S, self.last.cov_T_B_S, backend.unobservable(),
+        write_json(self.out / EXTRINSIC, extrinsic_record(self.last.T_B_S, self._covariance(backend), backend.unobservable(),
                                                           self.last.index))
         write_json(self.out / ASSOCIATIONS, associations_record(landmarks))
         write_json(self.out / LANDMARKS, landmarks_record(landmarks, self.last.T_B_S))
         write_json(self.out / SUMMARY, summary_record("online", timings or {}, self.latencies, len(self.latencies),
                                                       landmarks, finished, inputs=self.inputs,
                                                       frontend_drift=backend.odometry.summary() if backend.drift_every else None))
+
+    def _covariance(self, backend) -> np.ndarray:
+        """The last keyframe's extrinsic covariance: its result's or, where the backend skipped
+        it, the graph's now (the same state, unless a keyframe stopped half-way: then the
+        graph's if it can give one, else NaN, so that what was written stays written)."""
+        if np.isfinite(self.last.cov_T_B_S).all():
+            return self.last.cov_T_B_S
+        try:
+            return backend.extrinsic_covariance()
+        except Exception:  # a graph left inconsistent by the failure
+            return np.full((6, 6), np.nan)
 
     def close(self) -> None:
         self.bim.close()

@@ -137,7 +137,7 @@ def test_a_match_leaning_out_of_plumb_is_revised():
     """A matched landmark that leans 2.7 deg out of its face's plumb (a board on the wall) loses
     the match; one leaning 2 deg (a wall built out of plumb) or turned 2.9 deg about the vertical
     keeps it."""
-    from bimgraph.backend.online import revision_reason
+    from bimgraph.backend.matches import revision_reason
 
     cfg = BackendConfig().bim_association
     faces, turned = _one_wall(cfg)

@@ -5,12 +5,15 @@ import gtsam
 import numpy as np
 import pytest
 
-from bimgraph.backend import BimAssociator, FaceIndex, Listener, planes_in_B_independent, run_offline, run_online
+from bimgraph.backend import (Alignment, Backend, BimAssociator, FaceIndex, Listener, planes_in_B_independent,
+                              run_offline, run_online)
 from bimgraph.backend.landmarks import Landmark
 from bimgraph.backend.synthetic import make_scene
+from bimgraph.bim.planemap import BimFace, PlaneMap
 from bimgraph.config import BackendConfig
 from bimgraph.evaluation.metrics import association_scores, ate, extrinsic_error
-from bimgraph.geometry import exp_se3, inverse, make_pose, plane_from_frame
+from bimgraph.geometry import exp_se3, inverse, make_pose, plane_from_frame, pose_to_tum
+from bimgraph.sequence.format import Keyframe, PlaneObservation
 
 
 @pytest.fixture(scope="module")
@@ -280,3 +283,29 @@ def test_offline_splits_a_landmark_per_section_in_the_order_it_saw_them():
     assert est._split(values)
     assert [(x.face, [k for k, _ in x.observations]) for x in est.landmarks.items] == [
         ("r20S", [0, 2, 4]), ("r00S", [1]), ("r10S", [3])]
+
+
+def test_a_wall_seen_in_two_parts_becomes_one_landmark_online():
+    """A wall seen at one end, then at the other (too far apart for the SLAM association's
+    extent check), makes two landmarks of one face; once both are matched, the second merges
+    into the first: one plane-to-BIM factor for the face, every observation on one landmark."""
+    # the wall's face is y = 0 facing +y, 4 m by 3 m; the camera at y = 2 looks along -y
+    plane_map = PlaneMap(faces=[BimFace(id="w", wall_guid="w", normal=(0, 1, 0), offset=0.0,
+                                        polygon=[(0, 0, 0), (4, 0, 0), (4, 0, 3), (0, 0, 3)])])
+    R_B_C = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # z_C = -y_B, y_C = -z_B
+    keyframes = []
+    for k, x in enumerate([0.6, 0.7, 0.8, 0.9, 1.0, 3.0, 3.1, 3.2, 3.3, 3.4]):
+        T_B_C = make_pose(R_B_C, np.array([x, 2.0, 1.5]))
+        corners_B = np.array([[x - 0.6, 0, 0.5], [x + 0.6, 0, 0.5], [x + 0.6, 0, 2.5], [x - 0.6, 0, 2.5]])
+        polygon_C = (corners_B - T_B_C[:3, 3]) @ T_B_C[:3, :3]
+        n_C = T_B_C[:3, :3].T @ np.array([0.0, 1.0, 0.0])
+        plane = PlaneObservation(n=tuple(n_C), d=2.0, cov=np.diag([1e-6, 1e-6, 1e-5]).tolist(), polygon=polygon_C.tolist())
+        keyframes.append(Keyframe(index=k, stamp=float(k), T_S_C=tuple(pose_to_tum(T_B_C)), planes=[plane]))
+    initial = Alignment(np.eye(4), np.diag([1e-4] * 3 + [1e-4] * 3))
+    backend = Backend(plane_map, BackendConfig(), initial)
+    results = [backend.process(kf) for kf in keyframes]
+    first, second = backend.landmarks[0], backend.landmarks[1]
+    assert second.merged_into == first.id and first.face == "w" and second.face is None
+    assert len(first.observations) == len(keyframes)
+    assert list(backend.graph.bim_index) == [first.id] and backend.landmarks.current() == [first]
+    assert {a.landmark for a in results[-1].associations} == {first.id}

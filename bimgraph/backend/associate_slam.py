@@ -96,7 +96,7 @@ class SlamAssociator:
         planes_in_C = _planes_to_frame(landmarks.planes_S, T_S_C)
         planes_C = np.stack([obs.plane_C for obs in observations])
         ok = (planes_C[:, :3] @ planes_in_C[:, :3].T > self.cos_max) & (
-            np.abs(planes_in_C[None, :, 3] - planes_C[:, 3:]) < self.cfg.max_offset_m)
+            np.abs(planes_in_C[None, :, 3] - planes_C[:, 3:]) < self.cfg.max_offset_m) & landmarks.active
         for row, obs in enumerate(observations):
             if len(obs.points_C):
                 points_S = transform_points(T_S_C, obs.points_C)

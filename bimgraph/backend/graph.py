@@ -190,6 +190,8 @@ class IncrementalGraph:
         self._reorder = False  # the next update re-adds factors of every pose
         self.bim_index: dict[int, int] = {}  # landmark -> its plane-to-BIM factor in iSAM2
         self.odometry_index: dict[int, int] = {}  # keyframe -> its odometry factor (from the one before) in iSAM2
+        self.observation_index: dict[int, list[int]] = {}  # landmark -> its observation factors in iSAM2
+        self._tracked_observations: list[tuple[int, int]] = []  # (landmark, position in the queued factors)
         self._copies = 0  # observations of frozen landmarks so far
         self.update_seconds = 0.0  # total time inside iSAM2 updates
         self.add(self.build.extrinsic_prior(T_B_S, cov_T_B_S_))
@@ -224,6 +226,18 @@ class IncrementalGraph:
         self.add(gtsam.PriorFactorPose3(anchor, frozen.T_S_A, self.build.first_pose_noise))
         self.add(plane_prior_at(point, plane, frozen.plane_R))
         self.add(self.build.observation_of(X(k), anchor, plane, plane_C, cov))
+
+    def add_observation(self, j: int, factor: gtsam.NonlinearFactor) -> None:
+        """An observation factor of landmark j (kept track of, so that a merge can move it)."""
+        self._tracked_observations.append((j, self._factors.size()))
+        self._factors.add(factor)
+
+    def retire(self, j: int, prior: gtsam.NonlinearFactor) -> None:
+        """Landmark j's factors go (its observations were added to the landmark it merged into);
+        `prior` keeps its plane, which iSAM2 cannot drop, determined."""
+        self._remove.extend(self.observation_index.pop(j, []))
+        self.remove_bim(j)
+        self.add(prior)
 
     def _add_tracked(self, table: dict, key: int, factor: gtsam.NonlinearFactor) -> None:
         self._tracked.append((table, key, self._factors.size()))
@@ -289,9 +303,11 @@ class IncrementalGraph:
         indices = result.getNewFactorsIndices()
         for table, key, position in self._tracked:
             table[key] = indices[position]
+        for j, position in self._tracked_observations:
+            self.observation_index.setdefault(j, []).append(indices[position])
         self._factors = gtsam.NonlinearFactorGraph()
         self._values = gtsam.Values()
-        self._tracked, self._remove, self._reorder = [], [], False
+        self._tracked, self._tracked_observations, self._remove, self._reorder = [], [], [], False
         return estimate
 
     def estimate(self, keys: list[int] = ()) -> gtsam.Values:

@@ -140,9 +140,18 @@ class LandmarkTable:
         self.bases_A = np.zeros((0, 3, 2))
         self.centres_S = np.zeros((0, 3))
         self.radii = np.zeros(0)  # inf where the extent is unknown
+        self.active = np.zeros(0, dtype=bool)  # False once merged into another landmark
 
     def __len__(self) -> int:
         return len(self.items)
+
+    def current(self) -> list[Landmark]:
+        """The landmarks not merged into another."""
+        return [lm for lm in self.items if lm.merged_into is None]
+
+    def retire(self, j: int) -> None:
+        """Landmark j was merged into another: association no longer offers it."""
+        self.active[j] = False
 
     def __getitem__(self, j: int) -> Landmark:
         return self.items[j]
@@ -157,6 +166,7 @@ class LandmarkTable:
         self.bases_A = np.concatenate([self.bases_A, np.zeros((1, 3, 2))])
         self.centres_S = np.vstack([self.centres_S, np.zeros(3)])
         self.radii = np.append(self.radii, np.inf)
+        self.active = np.append(self.active, True)
         self.set_estimate(landmark.id, landmark.plane_A, landmark.T_S_A, landmark.cov_A)
 
     def set_estimate(self, j: int, plane_A: np.ndarray, T_S_A: np.ndarray, cov_A: np.ndarray | None = None) -> None:

@@ -34,8 +34,9 @@ from bimgraph.backend.associate_bim import candidate
 from bimgraph.backend.graph import E, L, X, BatchSolver, bim_keys, cov_T_B_S, pose3
 from bimgraph.backend.landmarks import KEPT, Landmark, transform_points
 from bimgraph.backend.marginals import JointMarginals
+from bimgraph.backend.matches import face_misfit, one_plane_d2, revision_reason, unmatch
 from bimgraph.backend.odometry import OdometryModel
-from bimgraph.backend.online import Backend, Oracle, face_misfit, observations_of, one_plane, revision_reason, unmatch
+from bimgraph.backend.online import Backend, Oracle, observations_of
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
 from bimgraph.backend.robust_alignment import RobustAlignment, reduced
 from bimgraph.bim.planemap import PlaneMap
@@ -80,10 +81,10 @@ class OfflineEstimator:
                 graph, values = self._settle_drift(keyframes, observations, values, solve, graph)
             # the joint marginals the rounds and the results read: each active landmark's with its
             # anchor and the extrinsic
-            marginals = JointMarginals(graph, values, bim_keys(self._active()))
+            marginals = JointMarginals(graph, values, bim_keys(self.landmarks.current()))
             t1 = time.perf_counter()
             t_opt += t1 - t0
-            self.landmarks.read(values, [lm.id for lm in self._active()])
+            self.landmarks.read(values, [lm.id for lm in self.landmarks.current()])
             # a landmark spanning sections of a wall is split before any merging: compared
             # whole, a mix of sections built apart is one plane with neither, and the landmark
             # of the section alone would lose its face for good; merging waits for the next
@@ -95,7 +96,7 @@ class OfflineEstimator:
             if not changed and self.cfg.offline.gnc and set(self._matches()) != set(self.judge.verdicts):
                 t2 = time.perf_counter()
                 graph_with, point = reduced(self._graph(keyframes, observations, lambda lm: None), values,
-                                            [lm for lm in self._active() if lm.face is not None])
+                                            [lm for lm in self.landmarks.current() if lm.face is not None])
                 values.update(self.judge.decide(self._matches(), graph_with, point))
                 t_opt += time.perf_counter() - t2
                 changed = True
@@ -104,11 +105,8 @@ class OfflineEstimator:
         timings.update(optimisation_s=t_opt, bim_association_s=t_assoc, total_s=time.perf_counter() - start)
         return self._results(keyframes, values, marginals, timings, rounds)
 
-    def _active(self):
-        return [lm for lm in self.landmarks.items if lm.merged_into is None]
-
     def _matches(self) -> list[tuple[int, str]]:
-        return [(lm.id, lm.face) for lm in self._active() if lm.face is not None]
+        return [(lm.id, lm.face) for lm in self.landmarks.current() if lm.face is not None]
 
     def _graph(self, keyframes: list[Keyframe], observations,
                bim_factor: Callable[[Landmark], gtsam.NonlinearFactor | None] | None = None) -> gtsam.NonlinearFactorGraph:
@@ -125,7 +123,7 @@ class OfflineEstimator:
         if self.online.gravity_aligned:
             for kf in keyframes[1:]:
                 graph.add(build.gravity(kf.index, self.odometry.pose(kf)))
-        for lm in self._active():
+        for lm in self.landmarks.current():
             for k, i in lm.observations:
                 key = (lm.id, lm.anchor, k, i)
                 if key not in self._observation_factors:
@@ -171,7 +169,7 @@ class OfflineEstimator:
         landmark per section: built, the sections may differ by centimetres."""
         T_B_S = values.atPose3(E).inverse().matrix()
         split = False
-        for lm in self._active():
+        for lm in self.landmarks.current():
             faces = self.faces.observation_faces(lm.face, lm.centres_in(T_B_S))
             counts = Counter(faces)
             if lm.face is None or len(counts) == 1:
@@ -205,7 +203,7 @@ class OfflineEstimator:
         leaning on it, a cabinet's front): the one farther from the face loses the match and
         stays apart from it. (Coplanar sections of a wall stay apart: built, they may differ.)"""
         by_face: dict[str, list] = {}
-        for lm in self._active():
+        for lm in self.landmarks.current():
             if lm.face is not None:
                 by_face.setdefault(lm.face, []).append(lm)
         changed = False
@@ -213,7 +211,7 @@ class OfflineEstimator:
             keep = min(same, key=lambda lm: (lm.anchor, lm.id))
             for other in (lm for lm in same if lm is not keep):
                 changed = True
-                if one_plane(keep, other, marginals, self.cfg.offline.merge_gate):
+                if one_plane_d2(keep, other, marginals) <= self.cfg.offline.merge_gate:
                     keep.absorb(other, self.cfg.slam_association.extent_max_points)
                     values.erase(L(other.id))
                     continue
@@ -228,8 +226,8 @@ class OfflineEstimator:
         factor is the one of the graph `values` and `marginals` solve."""
         from bimgraph.deviations.graph import observed_planes  # (it imports the backend)
 
-        return observed_planes(self._active(), values, marginals,
-                               {lm.id: self.judge.judged_factor(lm) for lm in self._active() if lm.face is not None})
+        return observed_planes(self.landmarks.current(), values, marginals,
+                               {lm.id: self.judge.judged_factor(lm) for lm in self.landmarks.current() if lm.face is not None})
 
     def _results(self, keyframes, values, marginals, timings, rounds) -> Results:
         start = time.perf_counter()
@@ -240,10 +238,10 @@ class OfflineEstimator:
         cov = cov_T_B_S(T_S_B, marginals.marginal(E)) + self.online.locked_cov
         T_S_C = [values.atPose3(X(kf.index)).matrix() for kf in keyframes]
         self.online.resolve_faces(T_B_S)
-        for lm in self._active():
+        for lm in self.landmarks.current():
             lm.alignment = self.judge.verdicts.get((lm.id, lm.face), KEPT)
         face_of, landmark_of = {}, {}
-        for lm in self._active():
+        for lm in self.landmarks.current():
             for obs, face in zip(lm.observations, lm.observation_faces):
                 face_of[obs], landmark_of[obs] = face, lm.id
         for kf, pose in zip(keyframes, T_S_C):
@@ -251,18 +249,18 @@ class OfflineEstimator:
                 kf.index, kf.stamp, pose, T_B_S @ pose, T_B_S, cov,
                 [Association(i, landmark_of[(kf.index, i)], face_of[(kf.index, i)]) for i in range(len(kf.planes))],
                 float("nan"), keyframe=kf))
-        faces = sorted({lm.face for lm in self._active() if lm.face is not None})
+        faces = sorted({lm.face for lm in self.landmarks.current() if lm.face is not None})
         normals = self.faces.planes[[self.faces.row[f] for f in faces], :3] if faces else np.zeros((0, 3))
         return Results(mode="offline", indices=[kf.index for kf in keyframes], stamps=[kf.stamp for kf in keyframes],
                        T_S_C=T_S_C, T_B_C=[T_B_S @ p for p in T_S_C], T_B_S=T_B_S, cov_T_B_S=cov,
                        unobservable=self.online.unobservable_with(normals),
-                       landmarks=self._active(), timings=timings, rounds=rounds, observed_planes=planes,
+                       landmarks=self.landmarks.current(), timings=timings, rounds=rounds, observed_planes=planes,
                        bim_tolerance=self.judge.tolerance, frontend_drift=self.odometry.summary() if self.cfg.offline.estimate_drift else None)
 
     def _revise(self, values: gtsam.Values) -> bool:
         changed = False
         T_S_B = values.atPose3(E)
-        for lm in self._active():
+        for lm in self.landmarks.current():
             if lm.face is None:
                 continue
             plane_B = predict_local_plane(T_S_B, pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A))
@@ -273,7 +271,7 @@ class OfflineEstimator:
         return changed
 
     def _associate(self, values: gtsam.Values, marginals: JointMarginals) -> bool:
-        todo = [lm for lm in self._active() if lm.face is None and self.bim.eligible(lm.area, len(lm.observations))]
+        todo = [lm for lm in self.landmarks.current() if lm.face is None and self.bim.eligible(lm.area, len(lm.observations))]
         if not todo:
             return False
         candidates = [c for c in (candidate(lm, values.atPose3(E), marginals, self.bim) for lm in todo) if c is not None]

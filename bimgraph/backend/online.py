@@ -4,17 +4,18 @@ triggers, emitting the causal `T_B_C` and `T_B_S` (with covariance) after every 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 
 import gtsam
 import numpy as np
 
 from bimgraph.backend.alignment import Alignment, levelled, lock_directions, unlocked_covariance, unobservable_directions
 from bimgraph.backend.associate_bim import BimAssociator, FaceIndex, FaceMatch, candidate
-from bimgraph.backend.associate_slam import Observation, SlamAssociator, same_plane_d2
+from bimgraph.backend.associate_slam import Observation, SlamAssociator
 from bimgraph.backend import drift
 from bimgraph.backend.graph import E, L, X, FrozenPlane, IncrementalGraph, bim_keys, cov_T_B_S
 from bimgraph.backend.landmarks import KEPT, Landmark, LandmarkTable, observation_points, transform_points
+from bimgraph.backend.matches import face_misfit, one_plane_d2, revision_reason, unmatch
 from bimgraph.backend.odometry import OdometryModel
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
 from bimgraph.backend.robust_alignment import RobustAlignment, reduced
@@ -22,7 +23,6 @@ from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig
 from bimgraph.geometry import inverse, normalise_plane, plane_to_frame
 from bimgraph.sequence.format import Keyframe
-from factors.plane import predict_local_plane
 
 Oracle = Mapping[tuple[int, int], "str | None"]
 
@@ -30,45 +30,6 @@ Oracle = Mapping[tuple[int, int], "str | None"]
 def observations_of(kf: Keyframe, default_cov: np.ndarray) -> list[Observation]:
     return [Observation(i, normalise_plane(p.plane), default_cov if p.cov is None else np.asarray(p.cov),
                         observation_points(p.polygon, p.centre), p.area) for i, p in enumerate(kf.planes)]
-
-
-def misfit(plane_B: np.ndarray, face_plane: np.ndarray, centre_B: np.ndarray) -> tuple[float, float]:
-    """How far a plane in B is from a face: (angle in degrees, distance in metres of the face's
-    centre from the plane)."""
-    angle = float(np.degrees(np.arccos(np.clip(plane_B[:3] @ face_plane[:3], -1.0, 1.0))))
-    return angle, abs(float(plane_B[:3] @ centre_B + plane_B[3]))
-
-
-def face_misfit(lm: Landmark, face: str, faces: FaceIndex, T_S_B: gtsam.Pose3, cfg) -> float:
-    """How far the landmark is from `face`, in units of the gate's as-built tolerance."""
-    plane_B = predict_local_plane(T_S_B, gtsam.Pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A))
-    row = faces.row[face]
-    angle, offset = misfit(plane_B, faces.planes[row], faces.centres[row])
-    return (angle / cfg.face_normal_deg) ** 2 + (offset / cfg.face_offset_m) ** 2
-
-
-def one_plane(a: Landmark, b: Landmark, joint: Callable[[list[int]], np.ndarray], gate: float) -> bool:
-    """Whether two landmarks pass `gate` as one plane (`same_plane_d2`), with `joint(keys)` the
-    joint marginal covariance of keys in the order given."""
-    keys = [X(a.anchor)] + ([X(b.anchor)] if b.anchor != a.anchor else []) + [L(b.id), L(a.id)]
-    return same_plane_d2(a.plane_A, a.T_S_A, b.plane_A, b.T_S_A, joint(keys)) <= gate
-
-
-def revision_reason(plane_B: np.ndarray, faces: FaceIndex, face: str, cfg) -> str | None:
-    """Why a landmark matched to `face` no longer fits it, or None if it does."""
-    row = faces.row[face]
-    angle, offset = misfit(plane_B, faces.planes[row], faces.centres[row])
-    if angle > cfg.revision_normal_deg:
-        return f"normal {angle:.1f} deg off"
-    # the normals' elevations: how far the plane leans out of the plumb of a wall-like face
-    # (a slab's tilt is its whole normal angle, judged above)
-    elevation = np.arcsin(np.clip([plane_B[2], faces.planes[row, 2]], -1.0, 1.0))
-    plumb = float(np.degrees(abs(elevation[0] - elevation[1])))
-    if abs(elevation[1]) < np.pi / 4 and plumb > cfg.revision_plumb_deg:
-        return f"leaning {plumb:.1f} deg out of plumb"
-    if offset > cfg.revision_offset_m:
-        return f"offset {offset:.3f} m off"
-    return None
 
 
 class Backend:
@@ -111,6 +72,8 @@ class Backend:
         self._previous: tuple[Keyframe, np.ndarray] | None = None  # the keyframe before and its estimate
         self.odometry = OdometryModel(self.build)  # the front-end's drift, taken out as found
         self._keyframes: list[Keyframe] = []  # so far, for the drift's fit
+        self._observations: dict[tuple[int, int], Observation] = {}  # (keyframe, index) -> as seen, for merges
+        self._merged: list[int] = []  # landmarks that took another's observations in this keyframe
         self._count = 0
         # the robust alignment, online: GNC alone (its tolerance estimate and studentized tests
         # take the whole graph's marginals, seconds each time)
@@ -128,7 +91,8 @@ class Backend:
         cov = self.extrinsic_covariance(T_S_B) if self.covariance else np.full((6, 6), np.nan)
         result = KeyframeResult(
             index=kf.index, stamp=kf.stamp, T_S_C=T_S_C, T_B_C=T_B_S @ T_S_C, T_B_S=T_B_S, cov_T_B_S=cov,
-            associations=[Association(obs.index, j, self._face_of(j, T_B_S)) for obs, j in zip(observations, observed)],
+            associations=[Association(obs.index, j, self._face_of(j, T_B_S))
+                          for obs, j in zip(observations, map(self._current, observed))],
             latency_s=time.perf_counter() - start, isam2_s=self.graph.update_seconds - isam2_before, keyframe=kf)
         self.listener.on_keyframe(result)
         return result
@@ -150,8 +114,9 @@ class Backend:
         if self._revise(observed, values.atPose3(E).matrix()) | self._associate(observed, values.atPose3(E)):
             for _ in range(self.cfg.isam2.extra_updates):
                 self.graph.update()
-            values = self.graph.update(self._keys_of(observed) + [X(k), E])
-            self._refresh(values, observed, [])
+            merged, self._merged = self._merged, []
+            values = self.graph.update(self._keys_of(observed + merged) + [X(k), E])
+            self._refresh(values, observed + merged, merged)
         # (the re-added odometry is applied before the judgement reads the graph)
         if self.drift_every and self._count % self.drift_every == 0 and self._correct_drift():
             values = self._update_everything(k)
@@ -173,6 +138,12 @@ class Backend:
         values = self.graph.update(self._keys_of(everything) + [X(k), E])
         self._refresh(values, everything, [])
         return values
+
+    def _current(self, j: int) -> int:
+        """The landmark that holds landmark j's observations now (j, unless it was merged)."""
+        while self.landmarks[j].merged_into is not None:
+            j = self.landmarks[j].merged_into
+        return j
 
     def _face_of(self, j: int, T_B_S: np.ndarray) -> str | None:
         """The face behind landmark j's latest observation (a member of its matched group)."""
@@ -268,7 +239,7 @@ class Backend:
             j = len(self.landmarks)
             self.landmarks.add(Landmark(j, k, obs.plane_C, obs.cov, T_S_C))
             self.graph.insert_plane(j, obs.plane_C)
-            self.graph.add(self.build.anchor_observation(j, obs.plane_C, obs.cov))
+            self.graph.add_observation(j, self.build.anchor_observation(j, obs.plane_C, obs.cov))
             face = self.oracle.get((k, obs.index)) if self.oracle is not None else None
             if face is not None:
                 self._landmark_of_face[face] = j
@@ -276,7 +247,8 @@ class Backend:
         elif self.landmarks[j].frozen is not None:
             self.graph.add_frozen_observation(k, self.landmarks[j].frozen, obs.plane_C, obs.cov)
         else:
-            self.graph.add(self.build.observation(k, self.landmarks[j].anchor, j, obs.plane_C, obs.cov))
+            self.graph.add_observation(j, self.build.observation(k, self.landmarks[j].anchor, j, obs.plane_C, obs.cov))
+        self._observations[k, obs.index] = obs
         lm = self.landmarks[j]
         lm.add_observation(k, obs.index, transform_points(inverse(lm.T_S_A) @ T_S_C, obs.points_C), obs.area,
                            self.cfg.slam_association.extent_max_points)
@@ -350,13 +322,21 @@ class Backend:
         return changed
 
     def _claim(self, m: FaceMatch, T_S_B: gtsam.Pose3) -> bool:
-        """Match landmark and face, unless the face has other landmarks that are not one plane
-        with this one (a cabinet's front before the wall it stands at): then of each such pair
-        the one farther from the face goes without and stays apart from it, as offline merging
-        decides. Whether a match changed."""
+        """Match landmark and face. If the face has a landmark that is one plane with this one
+        by the SLAM association's gate (a wall seen in parts, or again after the drift grew),
+        this one merges into it: a plane-to-BIM factor per landmark would count the face's
+        as-built tolerance once per landmark. A pair that passes only offline merging's wider
+        gate (young landmarks: a board on the wall passes it at three observations) stays two
+        matches. Of a pair that is not one plane even by that (a cabinet's front before the wall
+        it stands at), the one farther from the face goes without and stays apart from it.
+        Whether a match changed."""
         lm = self.landmarks[m.landmark]
         for rival in [other for other in self.landmarks.items if other.face == m.face and other.id != lm.id]:
-            if one_plane(rival, lm, self.graph.joint, self.cfg.offline.merge_gate):
+            d2 = one_plane_d2(rival, lm, self.graph.joint)
+            if d2 <= self.slam.gate:
+                self._merge(rival, lm)
+                return True
+            if d2 <= self.cfg.offline.merge_gate:
                 continue
             worse = max((rival, lm), key=lambda x: face_misfit(x, m.face, self.faces, T_S_B, self.cfg.bim_association))
             self.apart.add((worse.id, m.face))
@@ -366,11 +346,16 @@ class Backend:
         self._set_face(m.landmark, m.face, m.score)
         return True
 
-
-def unmatch(lm: Landmark, reason: str, listener: Listener) -> None:
-    lm.rejected.add(lm.face)
-    listener.on_association_removed(lm.id, lm.face, reason)
-    lm.face, lm.score = None, float("nan")
+    def _merge(self, keep: Landmark, gone: Landmark) -> None:
+        """`gone` is `keep`'s plane (one face, one plane): its observations move to `keep`."""
+        for k, i in gone.observations:
+            obs = self._observations[k, i]
+            self.graph.add_observation(keep.id, self.build.anchor_observation(keep.id, obs.plane_C, obs.cov) if k == keep.anchor
+                                       else self.build.observation(k, keep.anchor, keep.id, obs.plane_C, obs.cov))
+        self.graph.retire(gone.id, self.build.anchor_observation(gone.id, gone.plane_A, gone.cov_A))
+        keep.absorb(gone, self.cfg.slam_association.extent_max_points)
+        self.landmarks.retire(gone.id)
+        self._merged.append(keep.id)
 
 
 def run_online(keyframes, plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,
@@ -387,5 +372,5 @@ def run_online(keyframes, plane_map: PlaneMap, cfg: BackendConfig, initial: Alig
                "isam2_median_s": float(np.median([r.isam2_s for r in emitted]))}
     return Results(mode="online", indices=[r.index for r in emitted], stamps=[r.stamp for r in emitted],
                    T_S_C=[r.T_S_C for r in emitted], T_B_C=[r.T_B_C for r in emitted], T_B_S=last.T_B_S,
-                   cov_T_B_S=last.cov_T_B_S, unobservable=backend.unobservable(), landmarks=backend.landmarks.items,
+                   cov_T_B_S=last.cov_T_B_S, unobservable=backend.unobservable(), landmarks=backend.landmarks.current(),
                    timings=timings)

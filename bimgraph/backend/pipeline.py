@@ -159,6 +159,6 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
         raise
     writer.snapshot(backend, finished=True, timings={"total_s": time.perf_counter() - start})
     writer.close()
-    write_deviation_outputs(out_dir, plane_map, observed_planes_isam2(backend.graph, backend.landmarks.items),
+    write_deviation_outputs(out_dir, plane_map, observed_planes_isam2(backend.graph, backend.landmarks.current()),
                             writer.last.T_B_S, writer.T_B_C, meta.camera, cfg.deviations)
     return None

@@ -141,7 +141,7 @@ class OnlineWriter:
     def snapshot(self, backend, finished: bool, timings: dict | None = None) -> None:
         if self.last is None:
             return
-        landmarks = backend.landmarks.items
+        landmarks = backend.landmarks.current()
         backend.resolve_faces(self.last.T_B_S)
         write_json(self.out / EXTRINSIC, extrinsic_record(self.last.T_B_S, self._covariance(backend), backend.unobservable(),
                                                           self.last.index))

@@ -1,0 +1,62 @@
+"""A landmark's match to a BIM face, judged alike online and offline: how far the landmark
+sits from its face, when a match no longer fits, whether two landmarks are one plane, and
+undoing a match. No I/O."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import gtsam
+import numpy as np
+
+from bimgraph.backend.associate_bim import FaceIndex
+from bimgraph.backend.associate_slam import same_plane_d2
+from bimgraph.backend.graph import L, X
+from bimgraph.backend.landmarks import Landmark
+from bimgraph.backend.records import Listener
+from factors.plane import predict_local_plane
+
+
+def misfit(plane_B: np.ndarray, face_plane: np.ndarray, centre_B: np.ndarray) -> tuple[float, float]:
+    """How far a plane in B is from a face: (angle in degrees, distance in metres of the face's
+    centre from the plane)."""
+    angle = float(np.degrees(np.arccos(np.clip(plane_B[:3] @ face_plane[:3], -1.0, 1.0))))
+    return angle, abs(float(plane_B[:3] @ centre_B + plane_B[3]))
+
+
+def face_misfit(lm: Landmark, face: str, faces: FaceIndex, T_S_B: gtsam.Pose3, cfg) -> float:
+    """How far the landmark is from `face`, in units of the gate's as-built tolerance."""
+    plane_B = predict_local_plane(T_S_B, gtsam.Pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A))
+    row = faces.row[face]
+    angle, offset = misfit(plane_B, faces.planes[row], faces.centres[row])
+    return (angle / cfg.face_normal_deg) ** 2 + (offset / cfg.face_offset_m) ** 2
+
+
+def one_plane_d2(a: Landmark, b: Landmark, joint: Callable[[list[int]], np.ndarray]) -> float:
+    """Two landmarks' squared Mahalanobis distance as one plane (`same_plane_d2`), with
+    `joint(keys)` the joint marginal covariance of keys in the order given."""
+    keys = [X(a.anchor)] + ([X(b.anchor)] if b.anchor != a.anchor else []) + [L(b.id), L(a.id)]
+    return same_plane_d2(a.plane_A, a.T_S_A, b.plane_A, b.T_S_A, joint(keys))
+
+
+def revision_reason(plane_B: np.ndarray, faces: FaceIndex, face: str, cfg) -> str | None:
+    """Why a landmark matched to `face` no longer fits it, or None if it does."""
+    row = faces.row[face]
+    angle, offset = misfit(plane_B, faces.planes[row], faces.centres[row])
+    if angle > cfg.revision_normal_deg:
+        return f"normal {angle:.1f} deg off"
+    # the normals' elevations: how far the plane leans out of the plumb of a wall-like face
+    # (a slab's tilt is its whole normal angle, judged above)
+    elevation = np.arcsin(np.clip([plane_B[2], faces.planes[row, 2]], -1.0, 1.0))
+    plumb = float(np.degrees(abs(elevation[0] - elevation[1])))
+    if abs(elevation[1]) < np.pi / 4 and plumb > cfg.revision_plumb_deg:
+        return f"leaning {plumb:.1f} deg out of plumb"
+    if offset > cfg.revision_offset_m:
+        return f"offset {offset:.3f} m off"
+    return None
+
+
+def unmatch(lm: Landmark, reason: str, listener: Listener) -> None:
+    lm.rejected.add(lm.face)
+    listener.on_association_removed(lm.id, lm.face, reason)
+    lm.face, lm.score = None, float("nan")

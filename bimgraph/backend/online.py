@@ -41,7 +41,7 @@ class Backend:
 
     def __init__(self, plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,
                  listener: Listener | None = None, oracle: Oracle | None = None, covariance: bool = True,
-                 drift_every: int | None = None, judge_every: int | None = None):
+                 drift_every: int | None = None, judge_every: int | None = None, merge: bool = True):
         self.cfg = cfg
         # False: results carry NaN covariances, for callers that read it rarely
         # (`extrinsic_covariance`): on the simulated walks the extrinsic's marginal costs iSAM2
@@ -49,6 +49,7 @@ class Backend:
         self.covariance = covariance
         self.drift_every = cfg.isam2.drift_every if drift_every is None else drift_every
         self.judge_every = cfg.isam2.judge_every if judge_every is None else judge_every
+        self.merge = merge  # False: landmarks of one face stay apart (the offline rounds merge them)
         self.faces = FaceIndex(plane_map, cfg.bim_association)
         self.bim = BimAssociator(self.faces, cfg.bim_association)
         self.slam = SlamAssociator(cfg.slam_association)
@@ -333,7 +334,7 @@ class Backend:
         lm = self.landmarks[m.landmark]
         for rival in [other for other in self.landmarks.items if other.face == m.face and other.id != lm.id]:
             d2 = one_plane_d2(rival, lm, self.graph.joint)
-            if d2 <= self.slam.gate:
+            if self.merge and d2 <= self.slam.gate:
                 self._merge(rival, lm)
                 return True
             if d2 <= self.cfg.offline.merge_gate:

@@ -145,16 +145,18 @@ class LandmarkTable:
     def __len__(self) -> int:
         return len(self.items)
 
+    def __getitem__(self, j: int) -> Landmark:
+        return self.items[j]
+
     def current(self) -> list[Landmark]:
         """The landmarks not merged into another."""
         return [lm for lm in self.items if lm.merged_into is None]
 
-    def retire(self, j: int) -> None:
-        """Landmark j was merged into another: association no longer offers it."""
-        self.active[j] = False
-
-    def __getitem__(self, j: int) -> Landmark:
-        return self.items[j]
+    def merge(self, keep: Landmark, gone: Landmark, max_points: int) -> None:
+        """`gone` is `keep`'s plane: `keep` takes its observations and extent, and association
+        no longer offers `gone`."""
+        keep.absorb(gone, max_points)
+        self.active[gone.id] = False
 
     def add(self, landmark: Landmark) -> None:
         assert landmark.id == len(self.items)

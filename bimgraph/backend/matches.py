@@ -57,6 +57,7 @@ def revision_reason(plane_B: np.ndarray, faces: FaceIndex, face: str, cfg) -> st
 
 
 def unmatch(lm: Landmark, reason: str, listener: Listener) -> None:
+    """Undo landmark lm's match (for `reason`); it is not matched to that face again."""
     lm.rejected.add(lm.face)
     listener.on_association_removed(lm.id, lm.face, reason)
     lm.face, lm.score = None, float("nan")

@@ -214,7 +214,7 @@ class OfflineEstimator:
             for other in (lm for lm in same if lm is not keep):
                 changed = True
                 if one_plane_d2(keep, other, marginals) <= self.cfg.offline.merge_gate:
-                    keep.absorb(other, self.cfg.slam_association.extent_max_points)
+                    self.landmarks.merge(keep, other, self.cfg.slam_association.extent_max_points)
                     values.erase(L(other.id))
                     continue
                 worse = max((keep, other), key=lambda lm: face_misfit(lm, face, self.faces, values.atPose3(E), self.cfg.bim_association))

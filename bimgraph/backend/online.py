@@ -354,8 +354,7 @@ class Backend:
             self.graph.add_observation(keep.id, self.build.anchor_observation(keep.id, obs.plane_C, obs.cov) if k == keep.anchor
                                        else self.build.observation(k, keep.anchor, keep.id, obs.plane_C, obs.cov))
         self.graph.retire(gone.id, self.build.anchor_observation(gone.id, gone.plane_A, gone.cov_A))
-        keep.absorb(gone, self.cfg.slam_association.extent_max_points)
-        self.landmarks.retire(gone.id)
+        self.landmarks.merge(keep, gone, self.cfg.slam_association.extent_max_points)
         self._merged.append(keep.id)
 
 

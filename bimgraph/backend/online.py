@@ -249,7 +249,8 @@ class Backend:
             self.graph.add_frozen_observation(k, self.landmarks[j].frozen, obs.plane_C, obs.cov)
         else:
             self.graph.add_observation(j, self.build.observation(k, self.landmarks[j].anchor, j, obs.plane_C, obs.cov))
-        self._observations[k, obs.index] = obs
+        if self.merge:
+            self._observations[k, obs.index] = obs
         lm = self.landmarks[j]
         lm.add_observation(k, obs.index, transform_points(inverse(lm.T_S_A) @ T_S_C, obs.points_C), obs.area,
                            self.cfg.slam_association.extent_max_points)

@@ -123,6 +123,10 @@ class FactorBuilder:
         return plane_prior_factor(plane_C, self.plane_noise(cov), L(j))
 
     def observation(self, k: int, anchor: int, j: int, plane_C: np.ndarray, cov) -> gtsam.NonlinearFactor:
+        """Keyframe k sees landmark j (anchored at `anchor`); the anchor's own observation is a
+        prior on the plane (the plane factor would have pose and anchor on one key)."""
+        if k == anchor:
+            return self.anchor_observation(j, plane_C, cov)
         return self.observation_of(X(k), X(anchor), L(j), plane_C, cov)
 
     def observation_of(self, key_pose: int, key_anchor: int, key_plane: int, plane_C: np.ndarray, cov) -> gtsam.NonlinearFactor:

@@ -130,8 +130,7 @@ class OfflineEstimator:
                 key = (lm.id, lm.anchor, k, i)
                 if key not in self._observation_factors:
                     obs = observations[k][i]
-                    self._observation_factors[key] = (build.anchor_observation(lm.id, obs.plane_C, obs.cov) if k == lm.anchor
-                                                      else build.observation(k, lm.anchor, lm.id, obs.plane_C, obs.cov))
+                    self._observation_factors[key] = build.observation(k, lm.anchor, lm.id, obs.plane_C, obs.cov)
                 graph.add(self._observation_factors[key])
             factor = bim_factor(lm) if lm.face is not None else None
             if factor is not None:

@@ -129,7 +129,8 @@ class Backend:
     def extrinsic_covariance(self, T_S_B: gtsam.Pose3 | None = None) -> np.ndarray:
         """The covariance of `T_B_S` as the graph stands (6x6, gtsam's Pose3 tangent); `T_S_B`
         is the extrinsic's estimate, if the caller has it."""
-        T_S_B = T_S_B or self.graph.estimate([E]).atPose3(E)
+        if T_S_B is None:
+            T_S_B = self.graph.estimate([E]).atPose3(E)
         return cov_T_B_S(T_S_B, self.graph.marginal(E)) + self.locked_cov
 
     def _update_everything(self, k: int) -> gtsam.Values:
@@ -352,8 +353,7 @@ class Backend:
         """`gone` is `keep`'s plane (one face, one plane): its observations move to `keep`."""
         for k, i in gone.observations:
             obs = self._observations[k, i]
-            self.graph.add_observation(keep.id, self.build.anchor_observation(keep.id, obs.plane_C, obs.cov) if k == keep.anchor
-                                       else self.build.observation(k, keep.anchor, keep.id, obs.plane_C, obs.cov))
+            self.graph.add_observation(keep.id, self.build.observation(k, keep.anchor, keep.id, obs.plane_C, obs.cov))
         self.graph.retire(gone.id, self.build.anchor_observation(gone.id, gone.plane_A, gone.cov_A))
         self.landmarks.merge(keep, gone, self.cfg.slam_association.extent_max_points)
         self._merged.append(keep.id)

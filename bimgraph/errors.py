@@ -27,3 +27,10 @@ class ConfigError(BimgraphError):
     """The configuration or a command-line option is invalid."""
 
     exit_code = 4
+
+
+class SingularError(BimgraphError):
+    """The graph's linear system became singular: some variable is left unconstrained, or the
+    input's covariances are far overconfident."""
+
+    exit_code = 5

@@ -139,6 +139,38 @@ def test_corridor_runs_and_reports_unobservable(cfg):
     assert ("translation", (1.0, 0.0, 0.0)) in {(u["kind"], tuple(np.round(u["axis_B"], 6))) for u in offline.unobservable}
 
 
+def test_plane_covariances_are_floored(cfg):
+    """An overconfident front-end's planes (here 1e-8 m) are raised to the floor where the
+    graph and the association take them; a missing covariance is the default."""
+    from bimgraph.backend.graph import FactorBuilder
+
+    build = FactorBuilder(cfg)
+    floored = build.observation_cov(np.diag([1e-16, 1e-16, 1e-16]) + 1e-18)
+    floor = [np.radians(cfg.noise.plane_min_normal_deg) ** 2] * 2 + [cfg.noise.plane_min_offset_m**2]
+    assert np.diag(floored) == pytest.approx(floor, rel=1e-6)
+    assert floored[0, 1] == pytest.approx(1e-18)
+    loose = np.diag([1e-4, 1e-4, 1e-3])
+    assert np.array_equal(build.observation_cov(loose), loose)
+    assert np.array_equal(build.observation_cov(None), build.default_plane_cov)
+
+
+def test_a_singular_graph_is_an_error_naming_the_variable():
+    """gtsam's IndeterminantLinearSystemException, which `bimgraph run` turns into one line and
+    exit code 5 (`bimgraph.errors.SingularError`)."""
+    from bimgraph.backend.graph import X, singular_as_error
+    from bimgraph.errors import SingularError
+
+    graph = gtsam.NonlinearFactorGraph()  # two poses, one relative measurement, no prior
+    graph.add(gtsam.BetweenFactorPose3(X(0), X(1), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 0.1)))
+    values = gtsam.Values()
+    values.insert(X(0), gtsam.Pose3())
+    values.insert(X(1), gtsam.Pose3())
+    with pytest.raises(SingularError, match=r"singular at keyframe [01]:"), singular_as_error():
+        gtsam.ISAM2().update(graph, values)
+    with pytest.raises(RuntimeError, match="other"), singular_as_error():
+        raise RuntimeError("other")
+
+
 def test_bim_association_alone(scene, cfg):
     """The association baselines reuse: planes in S with covariances and a T_B_S estimate."""
     faces = FaceIndex(scene.plane_map, cfg.bim_association)

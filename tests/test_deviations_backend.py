@@ -136,7 +136,7 @@ def test_the_judgement_sees_the_whole_graph_through_its_marginal(offline_runs):
     tolerance estimate and the studentized tests see the same."""
     scene, plan, runs = offline_runs
     est, _ = runs[True]
-    observations = {kf.index: observations_of(kf, est.online.build.default_plane_cov) for kf in scene.keyframes}
+    observations = {kf.index: observations_of(kf, est.online.build) for kf in scene.keyframes}
     matched = [lm for lm in est.landmarks.current() if lm.face is not None]
     whole = est._graph(scene.keyframes, observations)
     values = BatchSolver(50, 1e-9)(whole, est.online.graph.estimate())

@@ -165,7 +165,7 @@ def test_odometry_noise_estimate_reads_each_steps_joint_marginal():
     scene, keyframes = biased_scene()
     est = OfflineEstimator(scene.plane_map, BackendConfig(), scene.initial)
     est.run(keyframes)
-    observations = {kf.index: observations_of(kf, est.online.build.default_plane_cov) for kf in keyframes}
+    observations = {kf.index: observations_of(kf, est.online.build) for kf in keyframes}
     graph = est._graph(keyframes, observations)
     values = BatchSolver(50, 1e-9)(graph, est.online.graph.estimate())
     steps = 3 * _STEPS_AT_ONCE  # spread over the walk, in three marginalisations

@@ -11,13 +11,16 @@ factor, so that the front-end's drift, once measured, can be taken out of them a
 
 from __future__ import annotations
 
+import re
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 
 from bimgraph.config import BackendConfig
+from bimgraph.errors import SingularError
 from bimgraph.geometry import normalise_plane
 from factors import face_tolerance_cov, local_plane_factor, plane_prior_at, plane_prior_factor, plane_to_bim_factor
 
@@ -27,6 +30,24 @@ E = gtsam.symbol("e", 0)
 # per observation of a frozen landmark, a copy of its anchor pose and of its plane
 ANCHOR_COPY = gtsam.symbol_shorthand.A
 PLANE_COPY = gtsam.symbol_shorthand.F
+_VARIABLES = {"x": "keyframe {}", "l": "landmark {}", "e": "the extrinsic", "a": "a frozen landmark's anchor copy {}",
+              "f": "frozen landmark copy {}"}
+
+
+@contextmanager
+def singular_as_error():
+    """gtsam's IndeterminantLinearSystemException (a RuntimeError in Python) as a
+    `SingularError` that names the variable it was found at."""
+    try:
+        yield
+    except RuntimeError as err:
+        if "Indetermin" not in str(err):
+            raise
+        found = re.search(r"\(Symbol: ([a-z])(\d+)\)", str(err))
+        where = _VARIABLES.get(found[1], found[1] + "{}").format(found[2]) if found else "an unknown variable"
+        raise SingularError(f"the graph's linear system became singular at {where}: a variable no factor constrains, "
+                            "or covariances far overconfident against the others (the front-end's odometry, "
+                            "the planes')") from None
 
 
 def pose3(T: np.ndarray) -> gtsam.Pose3:
@@ -101,6 +122,7 @@ class FactorBuilder:
             sigmas_cov(np.radians(n.prior_first_pose_rot_deg), n.prior_first_pose_trans_m))
         self.default_odometry_cov = sigmas_cov(np.radians(n.odometry_rot_deg), n.odometry_trans_m)
         self.default_plane_cov = plane_cov(np.radians(n.plane_normal_deg), n.plane_offset_m)
+        self._plane_cov_floor = np.diag(plane_cov(np.radians(n.plane_min_normal_deg), n.plane_min_offset_m))
         self.gravity_noise = gtsam.noiseModel.Isotropic.Sigma(2, np.radians(n.gravity_deg))
 
     def first_pose(self, k: int, T_S_C: np.ndarray) -> gtsam.NonlinearFactor:
@@ -116,8 +138,16 @@ class FactorBuilder:
         noise = gtsam.noiseModel.Gaussian.Covariance(self.default_odometry_cov if cov is None else np.asarray(cov))
         return gtsam.BetweenFactorPose3(X(k_prev), X(k), pose3(T_prev_k), noise)
 
-    def plane_noise(self, cov: np.ndarray | None) -> gtsam.noiseModel.Gaussian:
-        return gtsam.noiseModel.Gaussian.Covariance(self.default_plane_cov if cov is None else np.asarray(cov))
+    def observation_cov(self, cov) -> np.ndarray:
+        """A plane observation's covariance as the graph and the association take it: the
+        default where it has none, its diagonal raised to the floor where it is below."""
+        if cov is None:
+            return self.default_plane_cov
+        cov = np.asarray(cov, dtype=float)
+        return cov + np.diag(np.maximum(self._plane_cov_floor - np.diag(cov), 0.0))
+
+    def plane_noise(self, cov) -> gtsam.noiseModel.Gaussian:
+        return gtsam.noiseModel.Gaussian.Covariance(self.observation_cov(cov))
 
     def anchor_observation(self, j: int, plane_C: np.ndarray, cov) -> gtsam.NonlinearFactor:
         return plane_prior_factor(plane_C, self.plane_noise(cov), L(j))

@@ -70,7 +70,7 @@ class OfflineEstimator:
             self.online.advance(kf)
         timings = {"online_pass_s": time.perf_counter() - start}
         values = self.online.graph.estimate()
-        observations = {kf.index: observations_of(kf, self.online.build.default_plane_cov) for kf in keyframes}
+        observations = {kf.index: observations_of(kf, self.online.build) for kf in keyframes}
 
         solve = BatchSolver(self.cfg.offline.max_iterations, self.cfg.offline.relative_error_tol)
         rounds, t_opt, t_assoc = 0, 0.0, 0.0

@@ -13,7 +13,7 @@ from bimgraph.backend.alignment import Alignment, levelled, lock_directions, unl
 from bimgraph.backend.associate_bim import BimAssociator, FaceIndex, FaceMatch, candidate
 from bimgraph.backend.associate_slam import Observation, SlamAssociator
 from bimgraph.backend import drift
-from bimgraph.backend.graph import E, L, X, FrozenPlane, IncrementalGraph, bim_keys, cov_T_B_S
+from bimgraph.backend.graph import E, L, X, FactorBuilder, FrozenPlane, IncrementalGraph, bim_keys, cov_T_B_S
 from bimgraph.backend.landmarks import KEPT, Landmark, LandmarkTable, observation_points, transform_points
 from bimgraph.backend.matches import face_misfit, one_plane_d2, revision_reason, unmatch
 from bimgraph.backend.odometry import OdometryModel
@@ -27,9 +27,9 @@ from bimgraph.sequence.format import Keyframe
 Oracle = Mapping[tuple[int, int], "str | None"]
 
 
-def observations_of(kf: Keyframe, default_cov: np.ndarray) -> list[Observation]:
-    return [Observation(i, normalise_plane(p.plane), default_cov if p.cov is None else np.asarray(p.cov),
-                        observation_points(p.polygon, p.centre), p.area) for i, p in enumerate(kf.planes)]
+def observations_of(kf: Keyframe, build: FactorBuilder) -> list[Observation]:
+    return [Observation(i, normalise_plane(p.plane), build.observation_cov(p.cov), observation_points(p.polygon, p.centre), p.area)
+            for i, p in enumerate(kf.planes)]
 
 
 class Backend:
@@ -104,7 +104,7 @@ class Backend:
         landmark each went to, and the estimates of its pose, the extrinsic and those landmarks."""
         k = kf.index
         T_S_C_guess = self._add_pose(kf)
-        observations = observations_of(kf, self.build.default_plane_cov)
+        observations = observations_of(kf, self.build)
         matches = self._match_observations(k, observations, T_S_C_guess)
         observed = [self._add_observation(k, obs, j, T_S_C_guess) for obs, j in zip(observations, matches)]
         self._count += 1

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from bimgraph.backend.alignment import Alignment, align_from_seeds
+from bimgraph.backend.graph import singular_as_error
 from bimgraph.backend.offline import run_offline
 from bimgraph.backend.online import Backend
 from bimgraph.backend.records import Listener, Results
@@ -116,6 +117,7 @@ def load_inputs(seq_dir: Path, bim: Path | None, cfg: Config) -> Inputs:
     return Inputs(seq_dir, meta, model, plane_map, initial_alignment(meta, cfg))
 
 
+@singular_as_error()
 def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = None, config: Config | None = None,
         seeds: list[tuple[int, int, str]] = (), oracle: bool = False, listener: Listener | None = None,
         progress: Callable[[int, int | None], None] | None = None, inputs: Inputs | None = None) -> Results | None:

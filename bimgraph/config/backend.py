@@ -16,6 +16,8 @@ class NoiseConfig(Section):
     odometry_trans_m: float = Field(0.005, gt=0, description="front-end relative pose between keyframes when a keyframe has no cov (translation)")
     plane_normal_deg: float = Field(1.0, gt=0, description="plane observation when it has no cov: normal")
     plane_offset_m: float = Field(0.02, gt=0, description="plane observation when it has no cov: offset")
+    plane_min_normal_deg: float = Field(0.01, gt=0, description="a plane observation's covariance is floored at this normal sigma... (no sensor resolves a wall's plane finer; far overconfident covariances made iSAM2's system singular)")
+    plane_min_offset_m: float = Field(0.0001, gt=0, description="...and this offset sigma")
     plane_kernel: str = Field("huber", pattern="^(none|huber|cauchy)$", description="robust kernel on plane observations (none, huber, cauchy)")
     plane_kernel_width: float = Field(2.0, gt=0, description="kernel width of plane observations, in sigmas")
     bim_normal_deg: float = Field(1.0, gt=0, description="plane-to-BIM factor: how far an as-built wall's normal strays from plan (a tilt about the face's centre)")

@@ -24,8 +24,8 @@ from bimgraph.sequence.format import Camera, PlaneObservation
 from bimgraph.sequence.groundtruth import rounded
 from bimgraph.sim.world import Element, plane_basis
 
-# Obliquity is capped here when scaling noise, so that grazing views keep some noise.
-_MIN_COS = 0.25
+# The least sigma a detection claims (radians, metres).
+_MIN_SIGMA = 1e-6
 
 
 @dataclass
@@ -142,6 +142,8 @@ def _observe(part: Polygon, element: Element, plane_C: np.ndarray, T_B_C: np.nda
     range_m = float(np.linalg.norm(to_centre))
     cos_view = abs(float(element.plane[:3] @ to_centre)) / range_m
     sigma_n, sigma_d = cfg.noise.sigmas(range_m, cos_view)
+    # (a covariance must be positive definite: with the noise off, detections claim 1e-6)
+    sigma_n, sigma_d = max(sigma_n, _MIN_SIGMA), max(sigma_d, _MIN_SIGMA)
     noisy = perturb_plane(plane_C, sigma_n, sigma_d, rng)
     ring_C = _project(ring_B @ T_C_B[:3, :3].T + T_C_B[:3, 3], noisy)
     centre_C = _project((T_C_B[:3, :3] @ centre_B + T_C_B[:3, 3])[None], noisy)[0]

@@ -95,6 +95,29 @@ def test_crash_mid_run_leaves_valid_outputs(world, tmp_path):
     assert extrinsic["keyframe"] == 39 and np.isfinite(extrinsic["covariance"]).all()
 
 
+def test_singular_graph_mid_run_is_one_line_and_keeps_the_outputs(world, tmp_path, monkeypatch):
+    """gtsam finding the system singular (as far overconfident covariances made it) ends the
+    run with exit code 5 and a line naming the keyframe; the outputs so far stay valid."""
+    _, root = world
+    process = Backend.process
+
+    def singular_at_30(self, kf):
+        if kf.index == 30:
+            raise RuntimeError("\nIndeterminate linear system detected while working near variable\n"
+                               "8646911284551352350 (Symbol: x30).\n\nThrown when a linear system is ill-posed.")
+        return process(self, kf)
+
+    monkeypatch.setattr(Backend, "process", singular_at_30)
+    out = tmp_path / "out"
+    result = run(root, "-o", out)
+    assert result.exit_code == 5
+    message = result.output.strip()
+    assert "\n" not in message and "singular at keyframe 30" in message
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["finished"] is False and summary["keyframes"] == 30
+    assert len(read_tum(out / "trajectory_bim.tum")[0]) == 30
+
+
 def test_online_run_writes_the_covariance_the_api_gives_at_that_keyframe(world, tmp_path):
     """`bimgraph run` skips the extrinsic's covariance per keyframe (nothing it writes reads
     it) and asks the graph for it where it writes: the same as the Python API's per keyframe."""

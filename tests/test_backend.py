@@ -273,7 +273,7 @@ def test_a_landmarks_plane_to_bim_factor_is_replaced_and_left_out_of_the_batch_g
     graph.insert_pose(0, np.eye(4))
     graph.insert_plane(0, plane_C)
     graph.add(graph.build.first_pose(0, np.eye(4)))
-    graph.add(graph.build.anchor_observation(0, plane_C, None))
+    graph.add(graph.build.anchor_observation(0, plane_C, graph.build.default_plane_cov))
     graph.add_bim(0, 0, face, centre)
     graph.update()
     assert graph.without_bim().size() == 3  # the extrinsic's prior, the first pose's, the observation

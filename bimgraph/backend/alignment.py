@@ -143,7 +143,7 @@ def align_from_seeds(planes_S: np.ndarray, planes_B: np.ndarray, cfg: BackendCon
     # the seed planes are given in S: anchor them at a fixed identity pose
     graph.add(build.first_pose(0, np.eye(4)))
     values.insert(X(0), gtsam.Pose3())
-    fixed = np.zeros((3, 3))  # (raised to noise.plane_min_*: fixed, against the walls' tolerance)
+    fixed = build.observation_cov(np.zeros((3, 3)))  # the floor: fixed, against the walls' tolerance
     for j, (plane_S, plane_B) in enumerate(zip(planes_S, planes_B)):
         graph.add(build.anchor_observation(j, plane_S, fixed))
         graph.add(build.bim(0, j, plane_B, None if centres_B is None else centres_B[j]))

@@ -146,8 +146,9 @@ class FactorBuilder:
         cov = np.asarray(cov, dtype=float)
         return cov + np.diag(np.maximum(self._plane_cov_floor - np.diag(cov), 0.0))
 
-    def plane_noise(self, cov) -> gtsam.noiseModel.Gaussian:
-        return gtsam.noiseModel.Gaussian.Covariance(self.observation_cov(cov))
+    def plane_noise(self, cov: np.ndarray) -> gtsam.noiseModel.Gaussian:
+        """The noise of a plane factor; `cov` as `observation_cov` gave it (or a landmark's marginal)."""
+        return gtsam.noiseModel.Gaussian.Covariance(cov)
 
     def anchor_observation(self, j: int, plane_C: np.ndarray, cov) -> gtsam.NonlinearFactor:
         return plane_prior_factor(plane_C, self.plane_noise(cov), L(j))

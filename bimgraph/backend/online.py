@@ -112,7 +112,9 @@ class Backend:
         values = self.graph.update(self._keys_of(refresh) + [X(k), E])
         self._refresh(values, refresh, [j for j in set(observed) if self._covariance_due(j)])
 
-        if self._revise(observed, values.atPose3(E).matrix()) | self._associate(observed, values.atPose3(E)):
+        # (every landmark on a refresh: a match made while the extrinsic was uncertain, to a
+        # plane never seen again, would otherwise never be checked against what it has become)
+        if self._revise(refresh, values.atPose3(E).matrix()) | self._associate(observed, values.atPose3(E)):
             for _ in range(self.cfg.isam2.extra_updates):
                 self.graph.update()
             merged, self._merged = self._merged, []
@@ -285,13 +287,14 @@ class Backend:
         self.graph.add_bim(j, lm.anchor, self.faces.planes[self.faces.row[face]], self.faces.centres[self.faces.row[face]])
         self.listener.on_association(j, face, score)
 
-    def _revise(self, observed: list[int], T_S_B: np.ndarray) -> bool:
+    def _revise(self, landmarks, T_S_B: np.ndarray) -> bool:
+        """Unmatch those of `landmarks` (ids, just refreshed) that no longer fit their face."""
         if self.oracle is not None:
             return False
         changed = False
-        for j in sorted(set(observed)):
+        for j in sorted(set(landmarks)):
             lm = self.landmarks[j]
-            if lm.face is None:
+            if lm.face is None or lm.merged_into is not None:
                 continue
             plane_B = plane_to_frame(self.landmarks.planes_S[j], T_S_B)  # (its estimate was just refreshed)
             reason = revision_reason(plane_B, self.faces, lm.face, self.cfg.bim_association)

@@ -341,3 +341,35 @@ def test_a_wall_seen_in_two_parts_becomes_one_landmark_online():
     assert len(first.observations) == len(keyframes)
     assert list(backend.graph.bim_index) == [first.id] and backend.landmarks.current() == [first]
     assert {a.landmark for a in results[-1].associations} == {first.id}
+
+
+def test_online_revises_a_match_no_longer_observed():
+    """A landmark matched wrongly and never seen again loses its match on the next refresh of
+    every landmark (`isam2.refresh_every`): online, a clutter plane matched at keyframe 15 of
+    site 3, while the extrinsic was uncertain, kept its wrong face to the end."""
+    from bimgraph.backend.online import Backend
+
+    scene = make_scene(120, rooms=(2, 1), seed=0)
+    cfg = BackendConfig()
+    backend = Backend(scene.plane_map, cfg, scene.initial)
+    last_seen = {}
+    for kf in scene.keyframes:
+        for a in backend.process(kf).associations:
+            last_seen[a.landmark] = kf.index
+    # a wall of the first room, last seen well before the end of the walk
+    j = min((j for j, k in last_seen.items() if backend.landmarks[j].face is not None and k < 80),
+            key=lambda j: last_seen[j])
+    lm = backend.landmarks[j]
+    normal_B = scene.initial.T_B_S[:3, :3] @ lm.plane_S[:3]
+    wrong = next(f.id for f in scene.plane_map.faces if np.dot(f.normal, normal_B) < 0.5)
+
+    backend = Backend(scene.plane_map, cfg, scene.initial)
+    for kf in scene.keyframes:
+        backend.process(kf)
+        if kf.index == last_seen[j]:
+            if backend.landmarks[j].face is not None:
+                backend._unmatch(backend.landmarks[j], "test")
+            backend._set_face(j, wrong, 0.0)
+            matched_at = kf.index
+    assert matched_at + cfg.isam2.refresh_every < scene.keyframes[-1].index
+    assert backend.landmarks[j].face is None and wrong in backend.landmarks[j].rejected

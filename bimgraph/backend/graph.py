@@ -209,7 +209,7 @@ class FrozenPlane:
 class IncrementalGraph:
     """iSAM2 over the graph. Factors and new values are queued, then `update` applies them."""
 
-    def __init__(self, cfg: BackendConfig, T_B_S: np.ndarray, cov_T_B_S_: np.ndarray):
+    def __init__(self, cfg: BackendConfig, T_B_S: np.ndarray, cov_T_B_S_: np.ndarray, extrinsic_last: bool = True):
         params = gtsam.ISAM2Params()
         params.setRelinearizeThreshold(cfg.isam2.relinearize_threshold)
         params.relinearizeSkip = cfg.isam2.relinearize_skip
@@ -230,6 +230,7 @@ class IncrementalGraph:
         self._tracked_observations: list[tuple[int, int]] = []  # (landmark, position in the queued factors)
         self._copies = 0  # observations of frozen landmarks so far
         self.update_seconds = 0.0  # total time inside iSAM2 updates
+        self.extrinsic_last = extrinsic_last  # see `_ordering_groups`
         self.add(self.build.extrinsic_prior(T_B_S, cov_T_B_S_))
         self._values.insert(E, pose3(T_B_S).inverse())
 
@@ -352,12 +353,14 @@ class IncrementalGraph:
         the variables of the new factors, as iSAM2 orders them by default, to keep them near
         the root too; except when the new factors touch every pose (the odometry re-added),
         which would put every pose in one root clique (a 15 s update, marginals minutes each):
-        then plain COLAMD before it."""
+        then plain COLAMD before it. Without `extrinsic_last`, iSAM2's own ordering (for a
+        caller that reads no marginal of it per keyframe)."""
         groups = gtsam.KeyGroupMap()
         if not self._reorder:
             for key in set(self._factors.keyVector()) | set(self._values.keys()):
                 groups.insert2(key, 1)
-        groups.insert2(E, 2)
+        if self.extrinsic_last:
+            groups.insert2(E, 2)
         return groups
 
     def estimate(self, keys: list[int] = ()) -> gtsam.Values:

@@ -41,7 +41,8 @@ class Backend:
 
     def __init__(self, plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,
                  listener: Listener | None = None, oracle: Oracle | None = None, covariance: bool = True,
-                 drift_every: int | None = None, judge_every: int | None = None, merge: bool = True):
+                 drift_every: int | None = None, judge_every: int | None = None, merge: bool = True,
+                 extrinsic_last: bool = True):
         self.cfg = cfg
         # False: results carry NaN covariances, for callers that read it rarely
         # (`extrinsic_covariance`): on the simulated walks the extrinsic's marginal costs iSAM2
@@ -61,7 +62,9 @@ class Backend:
         self.prior = Alignment(initial.T_B_S, lock_directions(initial, self.never_observable,
                                                               np.radians(cfg.lock_rot_deg), cfg.lock_trans_m))
         self.locked_cov = unlocked_covariance(initial, self.never_observable)
-        self.graph = IncrementalGraph(cfg, self.prior.T_B_S, self.prior.cov)
+        # (`extrinsic_last`: iSAM2 keeps E in its root clique, where its marginal is cheap; see
+        # `IncrementalGraph._ordering_groups`)
+        self.graph = IncrementalGraph(cfg, self.prior.T_B_S, self.prior.cov, extrinsic_last)
         self.build = self.graph.build
         self.landmarks = LandmarkTable()
         # (landmark, face) pairs found not one plane with another landmark of the face: the one

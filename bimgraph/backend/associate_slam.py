@@ -10,14 +10,14 @@ landmarks.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.stats import chi2
 
-from bimgraph.backend.landmarks import LandmarkTable, hull_2d, to_plane_2d, transform_points
+from bimgraph.backend.landmarks import LandmarkTable, bounding_sphere, hull_2d, to_plane_2d, transform_points
 from bimgraph.config import SlamAssociationConfig
 from factors.plane import local_plane_error
 
@@ -26,13 +26,19 @@ _INFEASIBLE = 1e12
 
 @dataclass
 class Observation:
-    """One plane seen in the camera: (n, d), its 3x3 tangent covariance, its boundary points."""
+    """One plane seen in the camera: (n, d), its 3x3 tangent covariance, its boundary points
+    (and a sphere about them, for gating against landmarks' extents)."""
 
     index: int
     plane_C: np.ndarray
     cov: np.ndarray
     points_C: np.ndarray
     area: float | None = None
+    centre_C: np.ndarray | None = field(init=False)  # None without points
+    radius: float = field(init=False)
+
+    def __post_init__(self):
+        self.centre_C, self.radius = bounding_sphere(self.points_C) if len(self.points_C) else (None, np.nan)
 
 
 def mahalanobis_to_landmarks(observations: list[Observation], T_S_C: np.ndarray, landmarks: LandmarkTable,
@@ -58,7 +64,17 @@ def mahalanobis_to_landmarks(observations: list[Observation], T_S_C: np.ndarray,
     # [[B_z^T R^T B_A, 0], [-t^T B_A, -1]]
     H = np.concatenate([PM[:, :, :3] @ landmarks.bases_A[js], PM[:, :, 3:]], axis=2)
     S = H @ landmarks.covs_A[js] @ H.transpose(0, 2, 1) + np.stack([obs.cov for obs in observations])[i]
-    return np.einsum("ji,ji->j", e, np.linalg.solve(S, e[:, :, None])[:, :, 0])
+    # e^T S^-1 e through S's Cholesky factor, spelled out for 3x3 (np.linalg.solve's stacked
+    # call costs several times these few operations on a keyframe's handful of pairs)
+    l11 = np.sqrt(S[:, 0, 0])
+    l21, l31 = S[:, 1, 0] / l11, S[:, 2, 0] / l11
+    l22 = np.sqrt(S[:, 1, 1] - l21 * l21)
+    l32 = (S[:, 2, 1] - l31 * l21) / l22
+    l33 = np.sqrt(S[:, 2, 2] - l31 * l31 - l32 * l32)
+    y1 = e[:, 0] / l11
+    y2 = (e[:, 1] - l21 * y1) / l22
+    y3 = (e[:, 2] - l31 * y1 - l32 * y2) / l33
+    return y1 * y1 + y2 * y2 + y3 * y3
 
 
 def same_plane_d2(plane_A1: np.ndarray, T_S_A1: np.ndarray, plane_A2: np.ndarray, T_S_A2: np.ndarray,
@@ -97,14 +113,13 @@ class SlamAssociator:
         planes_C = np.stack([obs.plane_C for obs in observations])
         ok = (planes_C[:, :3] @ planes_in_C[:, :3].T > self.cos_max) & (
             np.abs(planes_in_C[None, :, 3] - planes_C[:, 3:]) < self.cfg.max_offset_m) & landmarks.active
-        for row, obs in enumerate(observations):
-            if len(obs.points_C):
-                points_S = transform_points(T_S_C, obs.points_C)
-                centre = points_S.mean(axis=0)
-                radius = np.linalg.norm(points_S - centre, axis=1).max()
-                # bounding spheres: a lower bound of the exact extent gap
-                gap = np.linalg.norm(landmarks.centres_S - centre, axis=1) - landmarks.radii - radius
-                ok[row] &= ~(gap > self.cfg.max_extent_gap_m)
+        with_points = [row for row, obs in enumerate(observations) if obs.centre_C is not None]
+        if with_points:
+            centres_S = transform_points(T_S_C, np.stack([observations[row].centre_C for row in with_points]))
+            radii = np.array([observations[row].radius for row in with_points])
+            # bounding spheres: a lower bound of the exact extent gap
+            gap = np.linalg.norm(landmarks.centres_S[None] - centres_S[:, None], axis=2) - landmarks.radii - radii[:, None]
+            ok[with_points] &= ~(gap > self.cfg.max_extent_gap_m)
         return ok
 
     def associate(self, observations: list[Observation], T_S_C: np.ndarray, landmarks: LandmarkTable):

@@ -52,8 +52,12 @@ class DriftRates:
         return bool(np.linalg.norm(self.rotation - other.rotation) > rtol * size
                     or np.linalg.norm(self.translation - other.translation) > rtol * scale)
 
+    def __post_init__(self):
+        # (asked for every odometry factor made; numpy's `any` twice costs more than the step)
+        object.__setattr__(self, "_zero", not (self.rotation.any() or self.translation.any()))
+
     def is_zero(self) -> bool:
-        return not (self.rotation.any() or self.translation.any())
+        return self._zero
 
     def summary(self) -> dict:
         """The rates as a user reads them: degrees and percent per metre."""

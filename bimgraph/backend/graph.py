@@ -143,8 +143,11 @@ class FactorBuilder:
         default where it has none, its diagonal raised to the floor where it is below."""
         if cov is None:
             return self.default_plane_cov
-        cov = np.asarray(cov, dtype=float)
-        return cov + np.diag(np.maximum(self._plane_cov_floor - np.diag(cov), 0.0))
+        cov = np.array(cov, dtype=float)
+        diagonal = cov.diagonal()
+        if (diagonal < self._plane_cov_floor).any():  # (rarely: checking costs less than raising)
+            cov[np.diag_indices(3)] = np.maximum(diagonal, self._plane_cov_floor)
+        return cov
 
     def plane_noise(self, cov: np.ndarray) -> gtsam.noiseModel.Gaussian:
         """The noise of a plane factor; `cov` as `observation_cov` gave it (or a landmark's marginal)."""

@@ -4,6 +4,7 @@ undoing a match. No I/O."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import gtsam
@@ -20,7 +21,8 @@ from factors.plane import predict_local_plane
 def misfit(plane_B: np.ndarray, face_plane: np.ndarray, centre_B: np.ndarray) -> tuple[float, float]:
     """How far a plane in B is from a face: (angle in degrees, distance in metres of the face's
     centre from the plane)."""
-    angle = float(np.degrees(np.arccos(np.clip(plane_B[:3] @ face_plane[:3], -1.0, 1.0))))
+    # (math on scalars: numpy's calls cost ten times as much, and every match is judged per keyframe)
+    angle = math.degrees(math.acos(min(max(float(plane_B[:3] @ face_plane[:3]), -1.0), 1.0)))
     return angle, abs(float(plane_B[:3] @ centre_B + plane_B[3]))
 
 
@@ -47,9 +49,9 @@ def revision_reason(plane_B: np.ndarray, faces: FaceIndex, face: str, cfg) -> st
         return f"normal {angle:.1f} deg off"
     # the normals' elevations: how far the plane leans out of the plumb of a wall-like face
     # (a slab's tilt is its whole normal angle, judged above)
-    elevation = np.arcsin(np.clip([plane_B[2], faces.planes[row, 2]], -1.0, 1.0))
-    plumb = float(np.degrees(abs(elevation[0] - elevation[1])))
-    if abs(elevation[1]) < np.pi / 4 and plumb > cfg.revision_plumb_deg:
+    elevation = [math.asin(min(max(float(z), -1.0), 1.0)) for z in (plane_B[2], faces.planes[row, 2])]
+    plumb = math.degrees(abs(elevation[0] - elevation[1]))
+    if abs(elevation[1]) < math.pi / 4 and plumb > cfg.revision_plumb_deg:
         return f"leaning {plumb:.1f} deg out of plumb"
     if offset > cfg.revision_offset_m:
         return f"offset {offset:.3f} m off"

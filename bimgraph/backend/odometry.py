@@ -26,7 +26,7 @@ class OdometryModel:
     def __init__(self, build: FactorBuilder):
         self.build = build
         self._drift = DriftRates()
-        self._variance = np.ones(2)  # factors on the given noise: rotation, translation
+        self.variance = np.ones(2)  # factors on the given noise: rotation, translation
         self._poses: dict[int, np.ndarray] = {}  # keyframe -> its front-end pose (parsing it is slow)
         self._covs: dict[int, np.ndarray] = {}  # keyframe -> its step's covariance as given
         # keyframe -> its step's factor under the drift and variance as they stand (the offline
@@ -48,6 +48,8 @@ class OdometryModel:
     @variance.setter
     def variance(self, factors: np.ndarray) -> None:
         self._variance, self._factors = np.asarray(factors, dtype=float), {}
+        scale = np.sqrt(np.repeat(self._variance, 3))
+        self._scale = np.outer(scale, scale)
 
     def pose(self, kf: Keyframe) -> np.ndarray:
         """The front-end's `T_S_C` of keyframe `kf` (one keyframe per index)."""
@@ -61,8 +63,7 @@ class OdometryModel:
         return self._covs[kf.index]
 
     def _cov(self, kf: Keyframe) -> np.ndarray:
-        scale = np.sqrt(np.repeat(self.variance, 3))
-        return self._given_cov(kf) * np.outer(scale, scale)
+        return self._given_cov(kf) * self._scale
 
     def step(self, previous: Keyframe, kf: Keyframe) -> np.ndarray:
         """The front-end's step from `previous` to `kf` without its drift."""

@@ -21,14 +21,14 @@ from bimgraph.backend.records import Association, KeyframeResult, Listener, Resu
 from bimgraph.backend.robust_alignment import RobustAlignment, reduced
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig
-from bimgraph.geometry import inverse, normalise_plane, plane_to_frame
+from bimgraph.geometry import plane_to_frame
 from bimgraph.sequence.format import Keyframe
 
 Oracle = Mapping[tuple[int, int], "str | None"]
 
 
 def observations_of(kf: Keyframe, build: FactorBuilder) -> list[Observation]:
-    return [Observation(i, normalise_plane(p.plane), build.observation_cov(p.cov), observation_points(p.polygon, p.centre), p.area)
+    return [Observation(i, p.plane, build.observation_cov(p.cov), observation_points(p.polygon, p.centre), p.area)
             for i, p in enumerate(kf.planes)]
 
 
@@ -258,7 +258,7 @@ class Backend:
         if self.merge:
             self._observations[k, obs.index] = obs
         lm = self.landmarks[j]
-        lm.add_observation(k, obs.index, transform_points(inverse(lm.T_S_A) @ T_S_C, obs.points_C), obs.area,
+        lm.add_observation(k, obs.index, transform_points(self.landmarks.T_A_S[j] @ T_S_C, obs.points_C), obs.area,
                            self.cfg.slam_association.extent_max_points)
         # (its bounding sphere is recomputed by `_refresh`, which sets every observed landmark's estimate)
         if lm.frozen is None and len(lm.observations) >= self.cfg.isam2.freeze_after and not self._matchable(lm):

@@ -8,6 +8,7 @@ docs/formats.md; every record is validated on load and an error names the line a
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Literal
 
@@ -97,8 +98,9 @@ class PlaneObservation(BaseModel):
 
     @property
     def plane(self) -> np.ndarray:
-        n = np.asarray(self.n) / np.linalg.norm(self.n)
-        return np.array([*n, self.d])
+        """(n, d) with n scaled to unit length (the file's is unit to its printed digits)."""
+        norm = math.sqrt(sum(x * x for x in self.n))  # (math on three floats: numpy's calls cost more)
+        return np.array([self.n[0] / norm, self.n[1] / norm, self.n[2] / norm, self.d])
 
 
 class Keyframe(BaseModel):

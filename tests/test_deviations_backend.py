@@ -247,6 +247,38 @@ def test_offline_judges_each_wall_against_the_others(monkeypatch):
     assert errors[True] < 0.9 * errors[False]
 
 
+def test_offline_challenge_overturns_the_worse_consensus(monkeypatch):
+    """The judgement is made to choose the complement of its own consensus (the moved wall
+    kept whole, the walls that disagree with it held by their direction); once the rounds
+    settle, the challenge on the whole graph finds its complement (the consistent walls)
+    cheaper and takes it: the moved wall ends out of the alignment, and the poses with the
+    sound walls."""
+    from bimgraph.backend.landmarks import DIRECTION, KEPT
+    from bimgraph.backend.robust_alignment import RobustAlignment
+
+    real_decide, real_challenge = RobustAlignment.decide, OfflineEstimator._challenge
+    challenges = []
+
+    def decide(self, matches, graph_with, values):
+        real_decide(self, matches, graph_with, values)
+        self.verdicts = {m: DIRECTION if v == KEPT else KEPT for m, v in self.verdicts.items()}
+        return BatchSolver(20, 1e-6)(graph_with(self.factors(self.verdicts)), values)
+
+    def challenge(self, *args):
+        challenges.append(dict(self.judge.verdicts))
+        return real_challenge(self, *args)
+
+    monkeypatch.setattr(RobustAlignment, "decide", decide)
+    monkeypatch.setattr(OfflineEstimator, "_challenge", challenge)
+    scene = make_scene(160, rooms=(2, 1), seed=1, drift_rot_deg=0.01, drift_trans_m=0.001)
+    plan = moved_plan(scene.plane_map)
+    est = OfflineEstimator(plan, BackendConfig(), scene.initial)
+    res = est.run(scene.keyframes)
+    assert [{face for (_, face), v in verdicts.items() if v == KEPT} for verdicts in challenges][0] == {"r00E"}
+    assert {face: v for (_, face), v in est.judge.verdicts.items() if v != KEPT} == {"r00E": "direction"}
+    assert ate(res.T_B_C, np.asarray(scene.T_B_C)) < 0.015
+
+
 @pytest.mark.parametrize("judge_every", [0, 10])
 def test_online_judgement_overrules_a_moved_wall_seen_first(judge_every):
     """The walk starts facing a wall built 8 cm off. With the robust kernel alone

@@ -106,22 +106,9 @@ class RobustAlignment:
         kept factor is judged against the rest of the graph (`studentized`). `matches` are the
         (landmark, face) pairs to judge; returns the estimate under the verdicts."""
         cfg = self.cfg
-        c2, c2_direction = chi2.ppf(cfg.gnc_probability, 3), chi2.ppf(cfg.gnc_probability, 2)
+        c2 = chi2.ppf(cfg.gnc_probability, 3)
         solve = BatchSolver(cfg.gnc_iterations, cfg.relative_error_tol)
-        without_bim = graph_with(lambda lm: None)
-
-        def judged(values):
-            """The TLS cost of the estimate under the verdicts at `values`, the verdicts, that
-            estimate, and the graph it solves."""
-            whole = self._squared_residuals(matches, values) <= c2
-            direction = self._squared_residuals(matches, values, free_offset=True) <= c2_direction
-            verdicts = {m: KEPT if w else DIRECTION if d else OUT for m, w, d in zip(matches, whole, direction)}
-            graph = graph_with(lambda lm: self.factor(lm, 1.0, verdicts[lm.id, lm.face]))
-            values = solve(graph, values)
-            truncated = np.minimum(self._squared_residuals(matches, values), c2)
-            return without_bim.error(values) + 0.5 * float(truncated.sum()), verdicts, values, graph
-
-        candidates = [judged(values)]
+        candidates = [self._judged(matches, graph_with, values, solve)]
         r2 = self._squared_residuals(matches, values)
         mu = gnc.initial_mu(r2, c2)
         if mu is not None:
@@ -130,18 +117,58 @@ class RobustAlignment:
                 graph = graph_with(lambda lm: self.factor(lm, weights[lm.id, lm.face]))
                 values = solve(graph, values)
                 r2 = self._squared_residuals(matches, values)
-            candidates.append(judged(values))
-        _, self.verdicts, values, graph = min(candidates, key=lambda candidate: candidate[0])
+            candidates.append(self._judged(matches, graph_with, values, solve))
+        return self._settle(matches, graph_with, min(candidates, key=lambda candidate: candidate[0]), solve)
+
+    def adopt(self, matches: list[tuple[int, str]], graph_with: GraphWith, values: gtsam.Values) -> gtsam.Values:
+        """Judge `matches` at `values` as they stand (a consensus found elsewhere: the
+        offline estimator's challenge), then tighten the tolerance and test each kept factor
+        as `decide` does after choosing. Returns the estimate under the verdicts."""
+        solve = BatchSolver(self.cfg.gnc_iterations, self.cfg.relative_error_tol)
+        return self._settle(matches, graph_with, self._judged(matches, graph_with, values, solve), solve)
+
+    def verdicts_at(self, matches: list[tuple[int, str]], values: gtsam.Values) -> dict[tuple[int, str], str]:
+        """Each plane-to-BIM factor's verdict at `values`: kept whole if its squared whitened
+        residual is below GNC's threshold, else its direction if that is, else out."""
+        c2, c2_direction = chi2.ppf(self.cfg.gnc_probability, 3), chi2.ppf(self.cfg.gnc_probability, 2)
+        whole = self._squared_residuals(matches, values) <= c2
+        direction = self._squared_residuals(matches, values, free_offset=True) <= c2_direction
+        return {m: KEPT if w else DIRECTION if d else OUT for m, w, d in zip(matches, whole, direction)}
+
+    def tls_cost(self, without_bim: gtsam.NonlinearFactorGraph, matches: list[tuple[int, str]], values: gtsam.Values) -> float:
+        """The objective the verdicts are chosen by: every factor of `without_bim` (all but the
+        plane-to-BIM ones) plus `min(r^2, c^2) / 2` of each plane-to-BIM factor of `matches`."""
+        c2 = chi2.ppf(self.cfg.gnc_probability, 3)
+        return without_bim.error(values) + 0.5 * float(np.minimum(self._squared_residuals(matches, values), c2).sum())
+
+    def factors(self, verdicts: dict[tuple[int, str], str]) -> Callable[[Landmark], gtsam.NonlinearFactor | None]:
+        """Each landmark's plane-to-BIM factor under `verdicts`, Gaussian (for a `GraphWith`)."""
+        return lambda lm: self.factor(lm, 1.0, verdicts[lm.id, lm.face])
+
+    def _judged(self, matches, graph_with: GraphWith, values: gtsam.Values, solve: BatchSolver):
+        """The verdicts at `values`, the estimate re-solved under them, its TLS cost, and the
+        graph it solves: (cost, verdicts, estimate, graph)."""
+        verdicts = self.verdicts_at(matches, values)
+        graph = graph_with(self.factors(verdicts))
+        values = solve(graph, values)
+        return self.tls_cost(graph_with(lambda lm: None), matches, values), verdicts, values, graph
+
+    def _settle(self, matches, graph_with: GraphWith, chosen, solve: BatchSolver) -> gtsam.Values:
+        """The chosen candidate's verdicts, with the tolerance tightened to what its kept walls
+        show (re-judged under it until it settles), then each kept factor tested against the
+        rest (`studentized`). Returns the estimate under the verdicts."""
+        cfg = self.cfg
+        _, self.verdicts, values, graph = chosen
         for _ in range(cfg.tolerance_rounds if cfg.estimate_tolerance else 0):
             estimated = self._estimated_tolerance(graph, values)
             if np.allclose(estimated, self.tolerance, rtol=0.1):
                 break
             self.tolerance = estimated
-            _, self.verdicts, values, graph = judged(values)
+            _, self.verdicts, values, graph = self._judged(matches, graph_with, values, solve)
         while cfg.studentized and (demoted := self._worst_studentized(graph, values)) is not None:
             pair, verdict = demoted
             self.verdicts[pair] = verdict
-            graph = graph_with(lambda lm: self.factor(lm, 1.0, self.verdicts[lm.id, lm.face]))
+            graph = graph_with(self.factors(self.verdicts))
             values = solve(graph, values)
         return values
 

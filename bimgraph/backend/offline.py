@@ -55,10 +55,9 @@ class OfflineEstimator:
         # ones) and leaves the drift, the robust alignment and the merging of landmarks to the
         # rounds (merged in the causal pass, on young landmarks' marginals, the deviation report
         # lost: seeds 1-3 offsets within 1 cm 35 of 37 -> 31 of 35). It reads no marginal of the
-        # extrinsic per keyframe, so iSAM2 orders the variables its own way: the rounds start
-        # from its associations, and on deviation seed 2 those of the online ordering led them
-        # to 10.5 cm in the extrinsic against 1.9 (both causal passes end 9-14 cm off; why the
-        # rounds depend so on where they start is not understood yet)
+        # extrinsic per keyframe, so iSAM2 orders the variables its own way (the online
+        # ordering makes its updates dearer; on deviation seed 2 it also led the rounds to the
+        # other of two nearly equal consensuses, 10.5 cm off, before `_challenge`: now 2.6 cm)
         self.online = Backend(plane_map, cfg, initial, None, oracle, drift_every=0, judge_every=0, merge=False,
                               extrinsic_last=False)
         self.faces, self.bim, self.landmarks = self.online.faces, self.online.bim, self.online.landmarks

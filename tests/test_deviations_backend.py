@@ -277,6 +277,9 @@ def test_offline_challenge_overturns_the_worse_consensus(monkeypatch):
     assert [{face for (_, face), v in verdicts.items() if v == KEPT} for verdicts in challenges][0] == {"r00E"}
     assert {face: v for (_, face), v in est.judge.verdicts.items() if v != KEPT} == {"r00E": "direction"}
     assert ate(res.T_B_C, np.asarray(scene.T_B_C)) < 0.015
+    # the summary says so: which consensus won, by how much, and the faces judged otherwise
+    assert res.alignment_challenge["complement_taken"] and res.alignment_challenge["margin"] > 0
+    assert "r00E" in res.alignment_challenge["contested_faces"]
 
 
 @pytest.mark.parametrize("judge_every", [0, 10])

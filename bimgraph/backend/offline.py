@@ -67,6 +67,8 @@ class OfflineEstimator:
         # (landmark, anchor, keyframe, plane index) -> its observation factor: the graph is
         # rebuilt a score of times, and its plane factors change only where landmarks do
         self._observation_factors: dict[tuple[int, int, int, int], gtsam.NonlinearFactor] = {}
+        # how the consensus fared against its complement (`_challenge`), for the summary
+        self.challenge: dict | None = None
 
     def run(self, keyframes: list[Keyframe]) -> Results:
         start = time.perf_counter()
@@ -131,7 +133,9 @@ class OfflineEstimator:
         whole are kept whole and those it kept held by their direction alone, the whole graph
         solved from there and judged again; both estimates re-solved under their verdicts
         without robust kernel, the one of lower truncated-least-squares cost stays. Returns the
-        complement's estimate if it won, else None (also when every wall was kept)."""
+        complement's estimate if it won, else None (also when every wall was kept). Records in
+        `challenge` the margin between the two costs (half chi-square units: a few mean the
+        data hardly choose) and the faces whose verdicts differ."""
         matches = self._matches()
         if all(verdict == KEPT for verdict in self.judge.verdicts.values()):
             return None
@@ -141,7 +145,11 @@ class OfflineEstimator:
         rival = solve(self._graph(keyframes, observations, self.judge.factors(rival_verdicts)), start)
         ours = solve(self._graph(keyframes, observations, self.judge.factors(self.judge.verdicts)), values)
         without_bim = self._graph(keyframes, observations, lambda lm: None)
-        if self.judge.tls_cost(without_bim, matches, rival) >= self.judge.tls_cost(without_bim, matches, ours):
+        margin = self.judge.tls_cost(without_bim, matches, rival) - self.judge.tls_cost(without_bim, matches, ours)
+        self.challenge = {"complement_taken": bool(margin < 0), "margin": round(abs(float(margin)), 3),
+                          "contested_faces": sorted({face for (j, face) in matches
+                                                     if rival_verdicts[j, face] != self.judge.verdicts[j, face]})}
+        if margin >= 0:
             return None
         graph_with, point = reduced(without_bim, rival, [lm for lm in self.landmarks.current() if lm.face is not None])
         rival.update(self.judge.adopt(matches, graph_with, point))
@@ -296,7 +304,8 @@ class OfflineEstimator:
                        T_S_C=T_S_C, T_B_C=[T_B_S @ p for p in T_S_C], T_B_S=T_B_S, cov_T_B_S=cov,
                        unobservable=self.online.unobservable_with(normals),
                        landmarks=self.landmarks.current(), timings=timings, rounds=rounds, observed_planes=planes,
-                       bim_tolerance=self.judge.tolerance, frontend_drift=self.odometry.summary() if self.cfg.offline.estimate_drift else None)
+                       bim_tolerance=self.judge.tolerance, frontend_drift=self.odometry.summary() if self.cfg.offline.estimate_drift else None,
+                       alignment_challenge=self.challenge)
 
     def _revise(self, values: gtsam.Values) -> bool:
         changed = False

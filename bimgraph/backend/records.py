@@ -57,6 +57,9 @@ class Results:
     # the front-end's drift rates and odometry noise scale as the offline estimate measured
     # them (`bimgraph.backend.drift`), if it did
     frontend_drift: dict | None = None
+    # offline: the robust alignment's consensus against its complement
+    # (`OfflineEstimator._challenge`), if it ran
+    alignment_challenge: dict | None = None
     # Every landmark with its joint covariance with E and its anchor, for the deviation step
     # (`bimgraph.deviations.estimate.ObservedPlane`).
     observed_planes: list = field(default_factory=list)

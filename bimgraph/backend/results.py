@@ -79,7 +79,8 @@ def landmarks_record(landmarks: list[Landmark], T_B_S: np.ndarray) -> dict:
 
 def summary_record(mode: str, timings: dict, latencies_s: list[float], n_keyframes: int, landmarks: list[Landmark],
                    finished: bool, rounds: int = 0, inputs: dict | None = None,
-                   bim_tolerance: tuple[float, float] | None = None, frontend_drift: dict | None = None) -> dict:
+                   bim_tolerance: tuple[float, float] | None = None, frontend_drift: dict | None = None,
+                   alignment_challenge: dict | None = None) -> dict:
     summary = {"mode": mode, "finished": finished, **(inputs or {}), "keyframes": n_keyframes, "landmarks": len(landmarks),
                "matched_landmarks": sum(lm.face is not None for lm in landmarks),
                "matched_faces": len({lm.face for lm in landmarks if lm.face is not None}),
@@ -96,6 +97,8 @@ def summary_record(mode: str, timings: dict, latencies_s: list[float], n_keyfram
                                     "offset_m": round(float(bim_tolerance[1]), 5)}
     if frontend_drift is not None:
         summary["frontend_drift"] = frontend_drift
+    if alignment_challenge is not None:
+        summary["alignment_challenge"] = alignment_challenge
     return summary
 
 
@@ -178,4 +181,4 @@ def write_results(out_dir: Path, results: Results, inputs: dict | None = None) -
     write_json(out / LANDMARKS, landmarks_record(results.landmarks, results.T_B_S))
     write_json(out / SUMMARY, summary_record(results.mode, results.timings, [], len(results.stamps), results.landmarks,
                                              True, results.rounds, inputs, results.bim_tolerance,
-                                             results.frontend_drift))
+                                             results.frontend_drift, results.alignment_challenge))

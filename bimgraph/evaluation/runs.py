@@ -105,6 +105,10 @@ def run_summary(out_dir: Path) -> list[tuple[str, str]]:
     if drift := summary.get("frontend_drift"):
         rows.append(("front-end drift", f"correction {drift['rotation_deg_per_m'][2]:+.3f} deg/m about z, "
                                         f"{np.linalg.norm(drift['translation_percent']):.2f} % of the distance"))
+    if challenge := summary.get("alignment_challenge"):
+        taken = "the complement of the first consensus, ahead" if challenge["complement_taken"] else "consensus ahead of its complement"
+        rows.append(("alignment", f"{taken} by {challenge['margin']:.1f} ({len(challenge['contested_faces'])} faces "
+                                  "judged otherwise there)"))
     if (out_dir / DEVIATIONS_JSON).is_file():
         deviations = load_deviations(out_dir / DEVIATIONS_JSON)
         counts = deviations.counts()

@@ -146,6 +146,46 @@ def test_a_match_leaning_out_of_plumb_is_revised():
     assert revision_reason(turned([0, 0, 1], 2.9), faces, "a", cfg) is None
 
 
+def test_a_match_off_by_what_the_extrinsic_allows_is_kept():
+    """A landmark 30 cm before its face loses the match, unless the extrinsic's uncertainty
+    alone allows that offset `revision_offset_sigmas` times (asked for only then)."""
+    from bimgraph.backend.matches import revision_reason
+
+    cfg = BackendConfig().bim_association
+    faces, _ = _one_wall(cfg)
+    plane_B = np.array([0.0, 1.0, 0.0, -0.30])
+    asked = []
+
+    def sigma(value):
+        return lambda: asked.append(value) or value
+
+    assert revision_reason(plane_B, faces, "a", cfg).startswith("offset")
+    assert revision_reason(plane_B, faces, "a", cfg, sigma(0.05)).startswith("offset")
+    assert revision_reason(plane_B, faces, "a", cfg, sigma(0.15)) is None
+    assert revision_reason(plane_B + [0, 0, 0, 0.1], faces, "a", cfg, sigma(1.0)) is None
+    assert asked == [0.05, 0.15]  # not for an offset within `revision_offset_m`
+
+
+def test_offset_sigma_jacobian_is_the_numerical_one():
+    """The offset's standard deviation from the extrinsic's covariance, per tangent direction
+    of T_B_S, against a central difference of the offset itself."""
+    from bimgraph.backend.matches import offset_sigma
+
+    rng = np.random.default_rng(0)
+    T_B_S = exp_se3(np.r_[rng.normal(size=3), rng.normal(size=3) * 5])
+    n = rng.normal(size=3)
+    plane_S, centre_B = np.r_[n / np.linalg.norm(n), 1.3], rng.normal(size=3) * 4
+
+    def offset(xi):
+        plane_B = plane_to_frame(plane_S, inverse(T_B_S @ exp_se3(xi)))
+        return plane_B[:3] @ centre_B + plane_B[3]
+
+    for i, step in enumerate(np.eye(6) * 1e-7):
+        numerical = (offset(step) - offset(-step)) / 2e-7
+        cov = np.diag(np.eye(6)[i])
+        assert offset_sigma(plane_S, inverse(T_B_S), centre_B, cov) == pytest.approx(abs(numerical), rel=1e-6, abs=1e-9)
+
+
 def test_same_plane_d2_of_two_landmarks():
     """Two landmarks as one plane: zero for one wall seen from two anchors, and an offset
     apart by 3 sigma (of either landmark's offset, or of an anchor's position along the

@@ -41,8 +41,23 @@ def one_plane_d2(a: Landmark, b: Landmark, joint: Callable[[list[int]], np.ndarr
     return same_plane_d2(a.plane_A, a.T_S_A, b.plane_A, b.T_S_A, joint(keys))
 
 
-def revision_reason(plane_B: np.ndarray, faces: FaceIndex, face: str, cfg) -> str | None:
-    """Why a landmark matched to `face` no longer fits it, or None if it does."""
+def offset_sigma(plane_S: np.ndarray, T_S_B: np.ndarray, centre_B: np.ndarray, cov_T_B_S: np.ndarray) -> float:
+    """The standard deviation of a plane's offset from a face centre that the extrinsic's
+    covariance alone gives (`cov_T_B_S` in gtsam's right-perturbation tangent of T_B_S). The
+    offset is the plane's value at the centre carried into S, `n_S . (T_S_B c) + d_S`;
+    perturbing T_B_S by (w, v) moves `p = T_S_B c` by `-w x p - v`, so its Jacobian is
+    `-[p x n_S, n_S]`."""
+    n_S = plane_S[:3]
+    p = T_S_B[:3, :3] @ centre_B + T_S_B[:3, 3]
+    J = -np.concatenate([np.cross(p, n_S), n_S])
+    return float(np.sqrt(max(J @ cov_T_B_S @ J, 0.0)))
+
+
+def revision_reason(plane_B: np.ndarray, faces: FaceIndex, face: str, cfg,
+                    sigma: Callable[[], float] | None = None) -> str | None:
+    """Why a landmark matched to `face` no longer fits it, or None if it does. An offset past
+    `revision_offset_m` stands if `sigma()` (the offset's standard deviation from the
+    extrinsic's uncertainty, asked only then) allows it `revision_offset_sigmas` times."""
     row = faces.row[face]
     angle, offset = misfit(plane_B, faces.planes[row], faces.centres[row])
     if angle > cfg.revision_normal_deg:
@@ -53,7 +68,7 @@ def revision_reason(plane_B: np.ndarray, faces: FaceIndex, face: str, cfg) -> st
     plumb = math.degrees(abs(elevation[0] - elevation[1]))
     if abs(elevation[1]) < math.pi / 4 and plumb > cfg.revision_plumb_deg:
         return f"leaning {plumb:.1f} deg out of plumb"
-    if offset > cfg.revision_offset_m:
+    if offset > cfg.revision_offset_m and (sigma is None or offset > cfg.revision_offset_sigmas * sigma()):
         return f"offset {offset:.3f} m off"
     return None
 

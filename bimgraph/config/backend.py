@@ -58,7 +58,8 @@ class BimAssociationConfig(Section):
     ambiguity_margin: float = Field(9.0, ge=0, description="a match is deferred while a second face scores within this many chi-square units of the best")
     revision_normal_deg: float = Field(3.0, gt=0, description="an associated landmark whose normal strays more than this from its face (in B, current estimate) is unmatched")
     revision_plumb_deg: float = Field(2.5, gt=0, description="...or whose normal leans more than this further out of plumb than its face's (a face nearer vertical than level): a board leaning on the wall it hides, not the wall built out of plumb (2.5 deg is 11 cm over a 2.5 m storey)")
-    revision_offset_m: float = Field(0.25, gt=0, description="an associated landmark whose offset strays more than this from its face is unmatched")
+    revision_offset_m: float = Field(0.25, gt=0, description="an associated landmark whose offset strays more than this from its face is unmatched...")
+    revision_offset_sigmas: float = Field(3.0, gt=0, description="...online, unless the extrinsic's own uncertainty allows it this many sigmas (a wall across a direction the first walls matched left open arrives tens of tolerances off, and its kernel lets it move the extrinsic only slowly)")
 
 
 class Isam2Config(Section):

@@ -294,9 +294,10 @@ class Backend:
     def _revise(self, landmarks, T_S_B: np.ndarray) -> bool:
         """Unmatch those of `landmarks` (ids, just refreshed) that no longer fit their face. An
         offset the extrinsic's own uncertainty explains does not count against a match: site 3
-        with its initial alignment 37 cm off matched a wall across x rightly three times and
-        unmatched it each time 25 cm off, while the kernel let it move the extrinsic (causal
-        ATE 21.2 -> 11.7 cm; no other walk of the six, under seven initial alignments, changed)."""
+        with its initial alignment moved to 37 cm off matched a wall across x rightly three
+        times and unmatched it each time 25 cm off, while its factor was still pulling the
+        extrinsic over (causal ATE 21.2 -> 11.7 cm; no other walk of the six, under seven
+        initial alignments, changed)."""
         if self.oracle is not None:
             return False
         changed = False

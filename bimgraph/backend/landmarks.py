@@ -36,9 +36,14 @@ def hull_2d(uv: np.ndarray):
     return (shapely.linestrings(uv) if len(uv) > 1 else shapely.multipoints(uv)).convex_hull
 
 
+def centroid(points: np.ndarray) -> np.ndarray:
+    """The mean of points (N x 3, N > 0); np.mean costs three times this per call."""
+    return points.sum(axis=0) / len(points)
+
+
 def bounding_sphere(points: np.ndarray) -> tuple[np.ndarray, float]:
     """The centroid of points (N x 3, N > 0) and the radius about it that holds them all."""
-    centre = points.sum(axis=0) / len(points)  # (np.mean costs three times this per call)
+    centre = centroid(points)
     return centre, float(np.sqrt(((points - centre) ** 2).sum(axis=1).max()))
 
 
@@ -91,7 +96,7 @@ class Landmark:
 
     def add_observation(self, k: int, index: int, points_A: np.ndarray, area: float | None, max_points: int) -> None:
         self.observations.append((k, index))
-        self.centres_A.append(points_A.sum(axis=0) / len(points_A) if len(points_A) else None)
+        self.centres_A.append(centroid(points_A) if len(points_A) else None)
         self.grow_extent(points_A, area, max_points)
 
     def centres_in(self, T_X_S: np.ndarray) -> list[np.ndarray | None]:

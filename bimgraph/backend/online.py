@@ -303,11 +303,11 @@ class Backend:
         changed = False
 
         @functools.cache
-        def cov_T_B_S() -> np.ndarray:  # (asked for only where an offset is past the limit)
+        def extrinsic_cov() -> np.ndarray:  # (asked for only where an offset is past the limit)
             return self.extrinsic_covariance(gtsam.Pose3(T_S_B))
 
         def sigma(j: int, face: str) -> float:
-            return offset_sigma(self.landmarks.planes_S[j], T_S_B, self.faces.centres[self.faces.row[face]], cov_T_B_S())
+            return offset_sigma(self.landmarks.planes_S[j], T_S_B, self.faces.centres[self.faces.row[face]], extrinsic_cov())
 
         for j in sorted(set(landmarks)):
             lm = self.landmarks[j]

@@ -23,7 +23,9 @@ def _field(loc: tuple) -> str:
 def describe(err: ValidationError) -> str:
     first = err.errors()[0]
     more = f" (and {err.error_count() - 1} more)" if err.error_count() > 1 else ""
-    return f"{_field(first['loc'])}: {first['msg']}{more}"
+    # (our own validators' messages, without pydantic's "Value error, " before them)
+    message = first["msg"].removeprefix("Value error, ") if first["type"] == "value_error" else first["msg"]
+    return f"{_field(first['loc'])}: {message}{more}"
 
 
 def parse_model(model: type[M], data, where: str) -> M:

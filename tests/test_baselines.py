@@ -27,9 +27,19 @@ def test_global_recovers_a_known_transform_from_three_exact_planes():
 
 
 def test_one_normal_turns_the_prior_the_least():
-    reg = PlaneRegistration(T_B_S_TRUE, offset_sigma_m=0.02, prior_trans_m=2.0)
-    reg.add(_plane_S(FACES_B[0]), FACES_B[0])
-    assert np.allclose(reg.solve(), T_B_S_TRUE, atol=1e-6)
+    """One plane fixes its normal only: the prior, 5 degrees off, is turned onto it by the
+    smallest rotation (about the axis across both normals, by the angle between them)."""
+    R_off = Rotation.from_rotvec(np.radians(5.0) * np.array([0.3, 0.8, 0.5]) / np.linalg.norm([0.3, 0.8, 0.5])).as_matrix()
+    prior = make_pose(R_off @ T_B_S_TRUE[:3, :3], T_B_S_TRUE[:3, 3])
+    reg = PlaneRegistration(prior, offset_sigma_m=0.02, prior_trans_m=2.0)
+    plane_S, n_B = _plane_S(FACES_B[0]), FACES_B[0][:3]
+    reg.add(plane_S, FACES_B[0])
+    R = reg.solve()[:3, :3]
+    np.testing.assert_allclose(R @ plane_S[:3], n_B, atol=1e-9)
+    n_prior = prior[:3, :3] @ plane_S[:3]
+    turned = Rotation.from_matrix(R @ prior[:3, :3].T).magnitude()
+    assert turned > np.radians(1.0)
+    assert turned == pytest.approx(np.arccos(np.clip(n_prior @ n_B, -1, 1)), abs=1e-9)
 
 
 def test_methods_over_keyframes():

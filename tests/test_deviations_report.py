@@ -2,14 +2,17 @@
 
 import json
 
+import numpy as np
 import pytest
 from bcf.v3.bcfxml import BcfXml
+from scipy.spatial.transform import Rotation
 
 from bimgraph.config import DeviationConfig
 from bimgraph.deviations.assess import assess
 from bimgraph.deviations.bcf import read_bcf_topics, write_bcf
 from bimgraph.deviations.report import CSV_FILE, JSON_FILE, load_deviations, read_csv_rows, write_deviations
 from bimgraph.errors import FormatError
+from bimgraph.geometry import inverse, make_pose, pose_to_tum
 from deviation_scenes import T_S_B
 from test_deviations import room_scene
 
@@ -61,8 +64,18 @@ def test_bad_json_names_the_field(tmp_path, written):
         load_deviations(tmp_path / "bad.json")
 
 
-def test_bcf_reopens_and_names_existing_walls(written, tmp_path):
+# B 2.5 km and a turn of 30 degrees away from the IFC world frame, as in a georeferenced model
+T_W_B = make_pose(Rotation.from_euler("z", 30, degrees=True).as_matrix(), [2500.0, -1200.0, 35.0])
+
+
+@pytest.mark.parametrize("georeferenced", [False, True])
+def test_bcf_reopens_and_names_existing_walls(written, tmp_path, georeferenced):
+    """Every topic selects a deviating wall; its camera stands in the room, in front of the
+    face, and looks at it, in the IFC world frame (B's pose in it applied where B is not it)."""
     plane_map, data, _ = written
+    if georeferenced:
+        plane_map = plane_map.model_copy(update={"T_W_B": tuple(pose_to_tum(T_W_B))})
+    T_B_W = inverse(T_W_B) if georeferenced else np.eye(4)
     path = tmp_path / "deviations.bcf"
     n = write_bcf(data, plane_map, path, CFG)
     deviating = [f for f in data.faces if f.status == "deviating"]
@@ -81,7 +94,7 @@ def test_bcf_reopens_and_names_existing_walls(written, tmp_path):
             camera = vp.visualization_info.perspective_camera
             # The camera stands in the room (in front of the face) and looks at the face.
             face = next(f for f in plane_map.faces if f.wall_guid == vp.get_selected_guids()[0])
-            pos = camera.camera_view_point
-            direction = camera.camera_direction
-            assert face.normal[0] * pos.x + face.normal[1] * pos.y + face.normal[2] * pos.z + face.offset > 1.0
-            assert face.normal[0] * direction.x + face.normal[1] * direction.y + face.normal[2] * direction.z < -0.5
+            (p, d) = (np.array([v.x, v.y, v.z]) for v in (camera.camera_view_point, camera.camera_direction))
+            pos_B, direction_B = T_B_W[:3, :3] @ p + T_B_W[:3, 3], T_B_W[:3, :3] @ d
+            assert np.dot(face.normal, pos_B) + face.offset > 1.0
+            assert np.dot(face.normal, direction_B) < -0.5

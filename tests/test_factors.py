@@ -56,8 +56,46 @@ def test_analytic_jacobians_match_numerical(seed):
     rng = np.random.default_rng(seed)
     case = random_case(rng)
     _, analytic = local_plane_error(*case, jacobians=True)
-    for J, J_num in zip(analytic, numerical_jacobians(*case)):
+    assert len(analytic) == 3
+    for J, J_num in zip(analytic, numerical_jacobians(*case), strict=True):
         np.testing.assert_allclose(J, J_num, atol=1e-7)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_predicted_plane_jacobian_matches_numerical(seed):
+    """The whole 4x15 Jacobian of `predict_local_plane` (the association propagates
+    covariances through it raw, not only through the residual's 3x4 projection)."""
+    from factors.plane import predict_local_plane
+
+    T_W_i, T_W_a, plane_a, _ = random_case(np.random.default_rng(200 + seed))
+    _, J = predict_local_plane(T_W_i, T_W_a, plane_a, jacobian=True)
+    base, h, columns = [T_W_i, T_W_a, plane_a], 1e-6, []
+    for slot, dim in enumerate([6, 6, 3]):
+        for k in range(dim):
+            plus, minus = list(base), list(base)
+            plus[slot] = base[slot].retract(np.eye(dim)[k] * h)
+            minus[slot] = base[slot].retract(-np.eye(dim)[k] * h)
+            columns.append((predict_local_plane(*plus) - predict_local_plane(*minus)) / (2 * h))
+    np.testing.assert_allclose(J, np.column_stack(columns), atol=1e-7)
+
+
+def test_extrinsic_covariance_maps_are_the_numerical_ones():
+    """`extrinsic_cov_E` (T_B_S's covariance to E = T_S_B's) and `cov_T_B_S` (back): each
+    is J C J^T with J the numerical Jacobian of the inverse in gtsam's right-perturbation
+    tangent; and one undoes the other."""
+    from bimgraph.backend.graph import cov_T_B_S, extrinsic_cov_E
+
+    rng = np.random.default_rng(7)
+    T_B_S = random_pose(rng)
+    A = rng.normal(size=(6, 6))
+    cov = A @ A.T + 0.1 * np.eye(6)
+    T_S_B = T_B_S.inverse()
+    J = np.column_stack([(T_S_B.localCoordinates(T_B_S.retract(step).inverse())
+                          - T_S_B.localCoordinates(T_B_S.retract(-step).inverse())) / 2e-6 for step in np.eye(6) * 1e-6])
+    np.testing.assert_allclose(extrinsic_cov_E(T_B_S.matrix(), cov), J @ cov @ J.T, rtol=1e-6, atol=1e-9)
+    K = np.linalg.inv(J)  # (the inverse's Jacobian at T_S_B)
+    np.testing.assert_allclose(cov_T_B_S(T_S_B, cov), K @ cov @ K.T, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(cov_T_B_S(T_S_B, extrinsic_cov_E(T_B_S.matrix(), cov)), cov, rtol=1e-9, atol=1e-12)
 
 
 def values_of(T_W_i, T_W_a, plane_a):
@@ -136,19 +174,35 @@ def test_plane_to_bim_factors_recover_the_extrinsic():
 
 
 def test_plane_prior_factor():
+    """Its residual is `plane_prior_error` whitened by the noise; its Jacobian, at the
+    measurement, the numerical one of that (with a correlated covariance, as observations'
+    are, so that a transposed whitening shows); away from it, `LinearContainerFactor` keeps
+    that Jacobian (the documented approximation)."""
     rng = np.random.default_rng(5)
     z = normalise_plane(rng.normal(size=4))
-    cov = np.diag([1e-4, 4e-4, 9e-4])
-    factor = plane_prior_factor(z, gtsam.noiseModel.Gaussian.Covariance(cov), L)
+    A_ = rng.normal(size=(3, 3)) * 0.01
+    cov = A_ @ A_.T + np.diag([1e-4, 4e-4, 9e-4])
+    noise = gtsam.noiseModel.Gaussian.Covariance(cov)
+    factor = plane_prior_factor(z, noise, L)
+    measured = gtsam.OrientedPlane3(z)
+
+    def whitened(delta):
+        return noise.R() @ plane_prior_error(measured.retract(delta), z)
+
+    numerical = np.column_stack([(whitened(step) - whitened(-step)) / 2e-6 for step in np.eye(3) * 1e-6])
+    at = gtsam.Values()
+    at.insert(L, measured)
+    A, b = factor.linearize(at).jacobian()
+    np.testing.assert_allclose(A, numerical, atol=1e-6)
+    np.testing.assert_allclose(b, 0.0, atol=1e-12)
+
+    plane = measured.retract(np.array([0.01, -0.02, 0.03]))
     values = gtsam.Values()
-    plane = gtsam.OrientedPlane3(z).retract(np.array([0.01, -0.02, 0.03]))
     values.insert(L, plane)
     e = plane_prior_error(plane, z)
     np.testing.assert_allclose(e, [0.01, -0.02, 0.03], atol=1e-12)
-    assert factor.error(values) == pytest.approx(0.5 * e @ np.linalg.solve(cov, e), rel=1e-12)
-    # its Jacobian is the whitening matrix: the identity in the measurement's tangent space
-    A, _ = factor.linearize(values).jacobian()
-    np.testing.assert_allclose(A.T @ A, np.linalg.inv(cov), rtol=1e-9)
+    assert factor.error(values) == pytest.approx(0.5 * e @ np.linalg.solve(cov, e), rel=1e-9)
+    np.testing.assert_allclose(factor.linearize(values).jacobian()[0], A, atol=1e-12)
 
 
 def test_same_pose_and_anchor_key_is_refused():

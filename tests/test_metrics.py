@@ -26,8 +26,9 @@ def test_offset_trajectory_gives_that_ate():
     offset = np.array([0.03, -0.04, 0.0])  # 5 cm
     est = [make_pose(T[:3, :3], T[:3, 3] + offset) for T in gt]
     assert ate(est, gt) == pytest.approx(0.05, abs=1e-12)
-    # A constant offset moves no relative motion's translation... only where rotation is shared.
+    # A constant offset of every position moves no relative motion (its rotations are the same)
     t_rpe, r_rpe = rpe(est, gt)
+    assert t_rpe == pytest.approx(0.0, abs=1e-12)
     assert r_rpe == pytest.approx(0.0, abs=1e-6)
 
 

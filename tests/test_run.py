@@ -93,6 +93,27 @@ def test_crash_mid_run_leaves_valid_outputs(world, tmp_path):
     json.loads((out / "associations.json").read_text())
     extrinsic = json.loads((out / "extrinsic.json").read_text())
     assert extrinsic["keyframe"] == 39 and np.isfinite(extrinsic["covariance"]).all()
+    # a run that stops writes no deviation report
+    assert not any((out / name).exists() for name in ("deviations.json", "deviations.csv", "deviations.bcf"))
+
+
+def test_a_run_into_an_earlier_runs_folder_leaves_nothing_of_it_standing(world, tmp_path):
+    """The files an earlier run wrote at its end (its deviation report) and `bimgraph eval`'s
+    metrics of it go when a new run starts there: stopped midway, the new run would otherwise
+    have the earlier run's report beside its own files."""
+    _, root = world
+    out = tmp_path / "out"
+    assert run(root, "-o", out).exit_code == 0
+    (out / "metrics.json").write_text("{}")
+    lines = (root / "keyframes.jsonl").read_text().splitlines()
+    broken = tmp_path / "seq"
+    broken.mkdir()
+    for name in ("sequence.json", "planes.json"):
+        (broken / name).write_text((root / name).read_text())
+    (broken / "keyframes.jsonl").write_text("\n".join(lines[:20] + ["{"]) + "\n")
+    assert run(broken, "-o", out).exit_code == 3
+    assert json.loads((out / "summary.json").read_text())["keyframes"] == 20
+    assert not any((out / name).exists() for name in ("deviations.json", "deviations.csv", "deviations.bcf", "metrics.json"))
 
 
 def test_singular_graph_mid_run_is_one_line_and_keeps_the_outputs(world, tmp_path, monkeypatch):

@@ -144,21 +144,49 @@ def test_time_series_cover_every_keyframe(online_rrd):
     assert component_counts(path)[f"/{bp.METRICS}/extrinsic_cm/sigma"]["Scalars:scalars"].instances == 3 * N_KEYFRAMES
 
 
+def albedo_rows(path, entity: str) -> list[tuple[int, tuple]]:
+    """(keyframe, RGBA) of each colour the recording gives the face mesh at `entity`."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(str(path))
+    rows = []
+    for chunk in reader.store(store=reader.recordings()[0]).stream():
+        if chunk.entity_path != entity:
+            continue
+        batch = chunk.to_record_batch()
+        if "Mesh3D:albedo_factor" not in batch.schema.names:
+            continue
+        for k, colours in zip(batch.column("keyframe").to_pylist(), batch.column("Mesh3D:albedo_factor").to_pylist()):
+            if colours:
+                rows.append((k, tuple((int(colours[0]) >> shift) & 255 for shift in (24, 16, 8, 0))))  # (packed 0xRRGGBBAA)
+    return sorted(rows, key=lambda row: row[0])  # (stable: changes at one keyframe stay in order)
+
+
 def test_face_colours_follow_the_backend(online_rrd, scene):
+    """Each face starts unobserved; a face turns associated at the first keyframe whose
+    result matches a plane to it, and no other face ever does; the face marked deviating
+    ends so; a row is a change of colour."""
     path, results = online_rrd
-    counts = row_counts(path)
-    matched = {a.face for r in results for a in r.associations if a.face is not None}
-    assert len(matched) >= 4  # the backend did associate: the test is not vacuous
+    first_match = {}
+    for r in results:
+        for a in r.associations:
+            if a.face is not None:
+                first_match.setdefault(a.face, r.index)
+    assert len(first_match) >= 4  # the backend did associate: the test is not vacuous
+    cfg = ViewerConfig()
+    colour = {state: tuple(cfg.colour(state)) for state in ("unobserved", "observed", "associated", "deviating")}
     faces = [f.id for f in scene.plane_map.faces]
     for face in faces:
-        changes = counts["/" + face_entity(face)].get("Mesh3D:albedo_factor", 0)
-        # one initial colour, then one row per change of state
-        if face == faces[0]:
-            assert changes >= 2
-        elif face in matched:
-            assert changes >= 2, face
-        else:
-            assert changes >= 1, face
+        rows = albedo_rows(path, "/" + face_entity(face))
+        colours = [c for _, c in rows]
+        assert colours[0] == colour["unobserved"], face
+        assert all(a != b for a, b in zip(colours, colours[1:])), face
+        associated = [k for k, c in rows if c == colour["associated"]]
+        if face in first_match and face != faces[0]:
+            assert associated and associated[0] == first_match[face], face
+        elif face not in first_match:
+            assert not associated, face
+    assert albedo_rows(path, "/" + face_entity(faces[0]))[-1][1] == colour["deviating"]
 
 
 def test_blueprint_has_3d_camera_and_time_series_views(online_rrd):

@@ -15,11 +15,11 @@ from bimgraph.backend.graph import singular_as_error
 from bimgraph.backend.offline import run_offline
 from bimgraph.backend.online import Backend
 from bimgraph.backend.records import Listener, Results
-from bimgraph.backend.results import OnlineWriter, write_results
+from bimgraph.backend.results import METRICS, OnlineWriter, write_results
 from bimgraph.bim.planemap import PlaneMap, load_plane_map
 from bimgraph.config import Config
 from bimgraph.deviations.graph import observed_planes_isam2
-from bimgraph.deviations.outputs import write_deviation_outputs
+from bimgraph.deviations.outputs import DEVIATION_FILES, write_deviation_outputs
 from bimgraph.errors import ConfigError, InputError
 from bimgraph.geometry import normalise_plane, plane_from_frame, pose_from_tum
 from bimgraph.sequence.format import Keyframe, SequenceMeta, iter_keyframes, load_meta, load_sequence
@@ -117,6 +117,18 @@ def load_inputs(seq_dir: Path, bim: Path | None, cfg: Config) -> Inputs:
     return Inputs(seq_dir, meta, model, plane_map, initial_alignment(meta, cfg))
 
 
+# what a run writes only once it has finished, and `bimgraph eval` of a run
+_END_OF_RUN_FILES = (*DEVIATION_FILES, METRICS)
+
+
+def clear_previous_run(out_dir: Path) -> None:
+    """Remove what an earlier run into `out_dir` wrote at its end (its deviation report, its
+    evaluation), before this run writes there: a run that stops midway writes none of them,
+    and the earlier run's would stand beside it as if they were its own."""
+    for name in _END_OF_RUN_FILES:
+        (Path(out_dir) / name).unlink(missing_ok=True)
+
+
 @singular_as_error()
 def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = None, config: Config | None = None,
         seeds: list[tuple[int, int, str]] = (), oracle: bool = False, listener: Listener | None = None,
@@ -139,6 +151,7 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
             initial = seed_alignment(sequence.keyframes, plane_map, list(seeds), cfg, initial)
     if mode == "offline":
         results = run_offline(sequence.keyframes, plane_map, cfg.backend, initial, listener, truth)
+        clear_previous_run(out_dir)
         write_results(out_dir, results, named)
         write_deviation_outputs(out_dir, plane_map, results.observed_planes, results.T_B_S, results.T_B_C, meta.camera,
                                 cfg.deviations)
@@ -148,6 +161,7 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
     # the extrinsic's covariance per keyframe only for a listener (the viewer plots it); the
     # writer asks for it when it writes
     backend = Backend(plane_map, cfg.backend, initial, listener, truth, covariance=listener is not None)
+    clear_previous_run(out_dir)
     writer = OnlineWriter(out_dir, cfg.backend.write_every, named)
     start = time.perf_counter()
     try:

@@ -24,6 +24,7 @@ EXTRINSIC = "extrinsic.json"
 ASSOCIATIONS = "associations.json"
 LANDMARKS = "landmarks.json"
 SUMMARY = "summary.json"
+METRICS = "metrics.json"  # (written by `bimgraph eval` into a run's folder)
 
 
 def _pose7(T: np.ndarray) -> list[float]:

@@ -17,6 +17,7 @@ from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import DeviationConfig
 from bimgraph.deviations.report import DeviationsFile
 from bimgraph.errors import InputError
+from bimgraph.geometry import pose_from_tum
 
 BCF_FILE = "deviations.bcf"
 
@@ -34,6 +35,8 @@ def write_bcf(deviations: DeviationsFile, plane_map: PlaneMap, path: Path, cfg: 
               project_name: str = "bimgraph as-built deviations") -> int:
     """Write the BCF 3.0 file; returns the number of topics (deviating faces)."""
     faces = plane_map.index
+    # viewpoints are in the IFC file's world frame, in metres: B's pose in it, if B is not it
+    T_W_B = np.eye(4) if plane_map.T_W_B is None else pose_from_tum(plane_map.T_W_B)
     bcf = BcfXml.create_new(project_name)
     count = 0
     for record in deviations.faces:
@@ -42,9 +45,10 @@ def write_bcf(deviations: DeviationsFile, plane_map: PlaneMap, path: Path, cfg: 
         face = plane_map.faces[faces[record.face_id]]
         topic = bcf.add_topic(f"As-built deviation: {record.wall_name or record.face_id}", _describe(record, cfg),
                               cfg.bcf_author, topic_type="Issue", topic_status="Open")
-        # Look at the face's centre from inside its room, slightly from above.
-        offset = cfg.bcf_view_distance_m * np.asarray(face.normal) + np.array([0.0, 0.0, 0.5])
-        camera = build_camera_from_vectors(*camera_vectors_from_target_position(np.asarray(face.centre), offset))
+        # Look at the face's centre from inside its room, from half a metre above it.
+        offset_B = cfg.bcf_view_distance_m * np.asarray(face.normal) + np.array([0.0, 0.0, 0.5])
+        target_W = T_W_B[:3, :3] @ np.asarray(face.centre) + T_W_B[:3, 3]
+        camera = build_camera_from_vectors(*camera_vectors_from_target_position(target_W, T_W_B[:3, :3] @ offset_B))
         info = mdl.VisualizationInfo(guid=str(uuid.uuid4()), components=build_components(face.wall_guid),
                                      perspective_camera=camera)
         topic.add_visinfo_handler(VisualizationInfoHandler(info))

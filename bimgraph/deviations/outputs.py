@@ -13,9 +13,11 @@ from bimgraph.config import DeviationConfig
 from bimgraph.deviations.assess import assess
 from bimgraph.deviations.bcf import BCF_FILE, write_bcf
 from bimgraph.deviations.estimate import ObservedPlane
-from bimgraph.deviations.report import DeviationsFile, write_deviations
+from bimgraph.deviations.report import CSV_FILE, JSON_FILE, DeviationsFile, write_deviations
 from bimgraph.deviations.visibility import expected_view_counts
 from bimgraph.sequence.format import Camera
+
+DEVIATION_FILES = (JSON_FILE, CSV_FILE, BCF_FILE)
 
 
 def write_deviation_outputs(out_dir: Path, plane_map: PlaneMap, planes: Sequence[ObservedPlane], T_B_S: np.ndarray,

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from bimgraph.backend.pipeline import initial_alignment, load_model, model_path
-from bimgraph.backend.results import ASSOCIATIONS, EXTRINSIC, SUMMARY, TRAJECTORY_BIM
+from bimgraph.backend.results import ASSOCIATIONS, EXTRINSIC, METRICS, SUMMARY, TRAJECTORY_BIM
 from bimgraph.config import Config
 from bimgraph.deviations.report import FACE_STATUSES, JSON_FILE as DEVIATIONS_JSON, load_deviations
 from bimgraph.errors import FormatError, InputError
@@ -21,7 +21,6 @@ from bimgraph.sequence.format import Sequence, load_sequence
 from bimgraph.sequence.groundtruth import GroundTruth, load_groundtruth
 from bimgraph.sequence.tum import read_tum
 
-METRICS_FILE = "metrics.json"
 
 
 def load_estimate(out_dir: Path) -> Estimate:
@@ -127,7 +126,7 @@ def run_summary(out_dir: Path) -> list[tuple[str, str]]:
 
 
 def write_metrics(out_dir: Path, metrics: dict) -> None:
-    write_json(Path(out_dir) / METRICS_FILE, metrics)
+    write_json(Path(out_dir) / METRICS, metrics)
 
 
 def summary_row(name: str, metrics: dict) -> dict:

@@ -294,3 +294,41 @@ def test_joint_marginals_at_once_equal_gtsams_one_by_one():
     for subset in ([E, X(0), L(1)], [L(2), E], [X(1), L(0), X(0)], keys[::-1]):
         np.testing.assert_allclose(joint(subset), joint_covariance(marginals, subset), rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(joint.marginal(E), marginals.marginalCovariance(E), rtol=1e-9, atol=1e-15)
+
+
+def test_a_glimpse_does_not_measure_a_face_a_well_seen_landmark_measures():
+    """The west wall, built 12 cm off (too far for the graph's gate), has a landmark seen in 40
+    keyframes and a two-keyframe glimpse 3 mm closer to plan: the first measures it, and
+    neither is called unplanned."""
+    west = face("west")
+    planes = [observed(2, as_built_plane(west, 0.12), n_keyframes=40, extent_B=rectangle(0, 0.12, (0.5, 0.2), (3.5, 2.3)), area_m2=6.3),
+              observed(7, as_built_plane(west, 0.117), n_keyframes=2, extent_B=rectangle(0, 0.117, (0.6, 0.2), (3.4, 2.3)), area_m2=5.9)]
+    report = assess(room(), planes, T_S_B, CFG)
+    (west_report,) = report.faces
+    assert west_report.landmark == 2 and west_report.status == "deviating" and west_report.n_keyframes == 40
+    assert report.unplanned == []
+
+
+def test_a_plane_on_a_face_is_never_unplanned():
+    """A second landmark on the south wall, which the graph measures by another, is that
+    wall's, not a plane the model lacks."""
+    south = face("south")
+    planes = [observed(0, as_built_plane(south, 0.06), face_id="south-face"),
+              observed(8, as_built_plane(south, 0.061), extent_B=rectangle(1, 0.061, (0.5, 0.2), (5.5, 2.3)), area_m2=10.5)]
+    report = assess(room(), planes, T_S_B, CFG)
+    assert [(f.face_id, f.landmark, f.matched_by) for f in report.faces] == [("south-face", 0, "graph")]
+    assert report.unplanned == []
+
+
+def test_one_unplanned_plane_seen_on_two_visits_is_listed_once():
+    """Two landmarks of one partition across the room (two visits the SLAM association did
+    not join) are one unplanned plane, with the better-seen one's plane and both's keyframes;
+    a parallel partition a metre away is another."""
+    partition = [observed(3, np.array([1.0, 0.0, 0.0, -3.0]), n_keyframes=14,
+                          extent_B=rectangle(0, 3.0, (1.0, 0.0), (3.0, 2.0)), area_m2=4.0),
+                 observed(5, np.array([1.0, 0.0, 0.0, -3.01]), n_keyframes=11,
+                          extent_B=rectangle(0, 3.01, (1.2, 0.0), (3.1, 2.0)), area_m2=3.8),
+                 observed(6, np.array([1.0, 0.0, 0.0, -4.0]), n_keyframes=5,
+                          extent_B=rectangle(0, 4.0, (1.0, 0.0), (3.0, 2.0)), area_m2=4.0)]
+    report = assess(room(), partition, T_S_B, CFG)
+    assert [(u.landmark, u.n_keyframes) for u in report.unplanned] == [(3, 25), (6, 5)]

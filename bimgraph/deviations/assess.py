@@ -11,6 +11,7 @@ matched to landmarks by proximity (parallel, close, overlapping), and measured t
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 
 import numpy as np
 import shapely
@@ -26,7 +27,7 @@ from bimgraph.deviations.estimate import (
     face_deviation,
 )
 from bimgraph.deviations.visibility import face_shape
-from bimgraph.geometry import inverse, normal_angle_deg, plane_to_frame, point_plane_distance
+from bimgraph.geometry import inverse, normal_angle_deg, plane_frame, plane_to_frame, point_plane_distance
 
 
 def _overlap(face_2d, points_B: np.ndarray, cfg: DeviationConfig) -> bool:
@@ -41,28 +42,38 @@ def _overlap(face_2d, points_B: np.ndarray, cfg: DeviationConfig) -> bool:
     return len(xy) > 0 and shape.distance(shapely.Point(xy.mean(axis=0))) <= cfg.match_margin_m
 
 
-def proximity_matches(faces: Sequence[BimFace], planes: Sequence[ObservedPlane], T_S_B: np.ndarray,
-                      cfg: DeviationConfig) -> dict[str, ObservedPlane]:
-    """For each face, the closest plane that is tilted less than `match_max_tilt_deg` from it,
-    passes within `match_max_offset_m` of its centre and overlaps it (`_overlap`). A plane may
-    serve several faces: one wall plane spans the coplanar faces of neighbouring rooms."""
+def proximity_candidates(faces: Sequence[BimFace], planes: Sequence[ObservedPlane], T_S_B: np.ndarray,
+                         cfg: DeviationConfig) -> dict[str, list[ObservedPlane]]:
+    """For each face, every plane that is tilted less than `match_max_tilt_deg` from it, passes
+    within `match_max_offset_m` of its centre and overlaps it (`_overlap`). A plane may serve
+    several faces: one wall plane spans the coplanar faces of neighbouring rooms."""
     T_B_S = inverse(T_S_B)
     shapes = {face.id: face_shape(face) for face in faces}
-    best: dict[str, tuple[float, ObservedPlane]] = {}
+    candidates: dict[str, list[ObservedPlane]] = {}
     for plane in planes:
         extent_B = plane.extent_in(T_B_S)
         if len(extent_B) == 0:
             continue
         plane_B = plane_to_frame(plane.plane_S(), T_S_B)
         for face in faces:
-            if normal_angle_deg(plane_B[:3], np.asarray(face.normal)) > cfg.match_max_tilt_deg:
-                continue
-            dist = abs(float(point_plane_distance(np.asarray(face.centre), plane_B)))
-            if dist > cfg.match_max_offset_m or (face.id in best and best[face.id][0] <= dist):
-                continue
-            if _overlap(shapes[face.id], extent_B, cfg):
-                best[face.id] = (dist, plane)
-    return {face_id: plane for face_id, (_, plane) in best.items()}
+            if (normal_angle_deg(plane_B[:3], np.asarray(face.normal)) <= cfg.match_max_tilt_deg
+                    and abs(float(point_plane_distance(np.asarray(face.centre), plane_B))) <= cfg.match_max_offset_m
+                    and _overlap(shapes[face.id], extent_B, cfg)):
+                candidates.setdefault(face.id, []).append(plane)
+    return candidates
+
+
+def _one_plane(a: UnplannedPlane, extent_a: np.ndarray, b: UnplannedPlane, extent_b: np.ndarray,
+               cfg: DeviationConfig) -> bool:
+    """Whether two unplanned planes are one (two landmarks of one partition, seen on two
+    visits): parallel, close and overlapping by the tests a face's candidates pass."""
+    if normal_angle_deg(a.plane_B[:3], b.plane_B[:3]) > cfg.match_max_tilt_deg or b.centre_B is None:
+        return False
+    if abs(float(point_plane_distance(b.centre_B, a.plane_B))) > cfg.match_max_offset_m:
+        return False
+    origin, basis = plane_frame(a.plane_B)
+    return len(extent_a) >= 3 and _overlap((shapely.MultiPoint((extent_a - origin) @ basis).convex_hull, origin, basis),
+                                           extent_b, cfg)
 
 
 def _is_vertical(plane_B: np.ndarray, cfg: DeviationConfig) -> bool:
@@ -78,23 +89,28 @@ def assess(plane_map: PlaneMap, planes: Sequence[ObservedPlane], T_S_B: np.ndarr
     faces = {f.id: f for f in plane_map.faces}
     expected = expected_views or {}
 
-    measured: dict[str, tuple[FaceReport, float]] = {}
+    measured: dict[str, tuple[FaceReport, tuple]] = {}
 
     def measure(face: BimFace, plane: ObservedPlane, how: str):
         dev = face_deviation(face, plane, T_S_B)
         entry = FaceReport(face.id, face.wall_guid, face.wall_name, face.storey, classify(dev, plane.n_keyframes, cfg),
                            plane.n_keyframes, dev, plane.landmark, how, expected.get(face.id, 0))
-        # Two landmarks on one face (seen on two separate visits): keep the better measured one.
-        if face.id not in measured or dev.offset_sigma_m < measured[face.id][1]:
-            measured[face.id] = (entry, dev.offset_sigma_m)
+        # Two landmarks on one face (two visits, or a glimpse beside the wall's landmark): the
+        # better evidence measures it, seen in enough keyframes first, then the smaller sigma
+        sigma = dev.offset_sigma_m if dev.measurable and np.isfinite(dev.offset_sigma_m) else np.inf
+        rank = (plane.n_keyframes >= cfg.min_keyframes, -sigma)
+        if face.id not in measured or rank > measured[face.id][1]:
+            measured[face.id] = (entry, rank)
 
     for plane in planes:
         if plane.face_id is not None and plane.face_id in faces:
             measure(faces[plane.face_id], plane, "graph")
-    free_faces = [f for f in plane_map.faces if f.id not in measured]
-    matched = proximity_matches(free_faces, planes, T_S_B, cfg)
-    for face_id, plane in matched.items():
-        measure(faces[face_id], plane, "proximity")
+    candidates = proximity_candidates(plane_map.faces, planes, T_S_B, cfg)
+    for face_id, near in candidates.items():
+        if face_id in measured and measured[face_id][0].matched_by == "graph":
+            continue
+        for plane in near:
+            measure(faces[face_id], plane, "proximity")
     report.faces = [measured[f.id][0] for f in plane_map.faces if f.id in measured]
 
     for face in plane_map.faces:
@@ -103,16 +119,29 @@ def assess(plane_map: PlaneMap, planes: Sequence[ObservedPlane], T_S_B: np.ndarr
             report.faces.append(FaceReport(face.id, face.wall_guid, face.wall_name, face.storey, "possibly_not_built",
                                            expected_keyframes=seen_from))
 
-    used = {p.landmark for p in matched.values()}
+    # a plane that passes some face's tests is that face's (measuring it or not), not unplanned
+    near_a_face = {p.landmark for near in candidates.values() for p in near}
     T_B_S = inverse(T_S_B)
+    unplanned = []
     for plane in planes:
-        if (plane.face_id in faces or plane.landmark in used or plane.area_m2 < cfg.unplanned_min_area_m2
+        if (plane.face_id in faces or plane.landmark in near_a_face or plane.area_m2 < cfg.unplanned_min_area_m2
                 or plane.n_keyframes < cfg.min_keyframes):
             continue
         plane_B = plane_to_frame(plane.plane_S(), T_S_B)
         if cfg.unplanned_vertical_only and not _is_vertical(plane_B, cfg):
             continue
         extent_B = plane.extent_in(T_B_S)
-        report.unplanned.append(UnplannedPlane(plane.landmark, plane_B, extent_B.mean(axis=0) if len(extent_B) else None,
-                                               plane.area_m2, plane.n_keyframes))
+        unplanned.append((UnplannedPlane(plane.landmark, plane_B, extent_B.mean(axis=0) if len(extent_B) else None,
+                                         plane.area_m2, plane.n_keyframes), extent_B))
+    # landmarks of one unplanned plane (seen on two visits, which the SLAM association did not
+    # join) are listed once: the best-seen one, with the keyframes of all
+    listed: list[tuple[UnplannedPlane, np.ndarray]] = []
+    for entry, extent in sorted(unplanned, key=lambda e: -e[0].n_keyframes):
+        same = next((i for i, (kept, kept_extent) in enumerate(listed) if _one_plane(kept, kept_extent, entry, extent, cfg)), None)
+        if same is None:
+            listed.append((entry, extent))
+        else:
+            kept, kept_extent = listed[same]
+            listed[same] = (replace(kept, n_keyframes=kept.n_keyframes + entry.n_keyframes), kept_extent)
+    report.unplanned = [entry for entry, _ in listed]
     return report

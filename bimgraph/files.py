@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 
@@ -21,14 +22,50 @@ def read_json(path: Path):
         raise FormatError(f"{path}: line {err.lineno}: invalid JSON ({err.msg})") from None
 
 
-def write_atomic(path: Path, text: str) -> None:
-    """Write through a temporary file and rename, so that a crash never leaves a half file."""
+def ensure_folder(path: Path, target: Path | None = None) -> Path:
+    """Make the output folder `path` (and its parents); one that cannot be (a file in the way,
+    no permission) is an InputError naming `target` (default: the folder)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    target = path if target is None else target
+    blocking = next((p for p in (path, *path.parents) if p.exists() and not p.is_dir()), None)
+    if blocking is not None:
+        raise InputError(f"{target}: {blocking} is a file, not a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(f"{target}: cannot make the folder ({err.strerror or err})") from None
+    return path
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write through a temporary file and rename, so that a crash never leaves a half file.
+    A path that cannot be written (a folder, a device, under a file, no permission) is an
+    InputError naming it, and leaves nothing behind."""
+    path = Path(path)
+    if path.exists() and not path.is_file():
+        raise InputError(f"{path}: exists and is not a regular file")
+    ensure_folder(path.parent, path)
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    except OSError as err:
+        if tmp.is_file():
+            tmp.unlink()
+        raise InputError(f"{path}: cannot write ({err.strerror or err})") from None
+
+
+def _finite(data):
+    """NaN and infinities as null: JSON has no such numbers (a graph gone singular mid-run
+    leaves them in the covariance written last)."""
+    if isinstance(data, float):
+        return data if math.isfinite(data) else None
+    if isinstance(data, dict):
+        return {k: _finite(v) for k, v in data.items()}
+    if isinstance(data, (list, tuple)):
+        return [_finite(v) for v in data]
+    return data
 
 
 def write_json(path: Path, data) -> None:
-    write_atomic(path, json.dumps(data, indent=1) + "\n")
+    write_atomic(path, json.dumps(_finite(data), indent=1, allow_nan=False) + "\n")

@@ -1,6 +1,7 @@
 """A model with known geometry, written with ifcopenshell.api, re-extracted by the importer."""
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -321,3 +322,44 @@ def test_components_agree_with_scipy():
         def partition(labels):
             return {frozenset(np.flatnonzero(labels == label)) for label in np.unique(labels)}
         assert partition(np.asarray(labels)) == partition(expected)
+
+
+def test_odd_but_valid_placements_and_a_degenerate_opening(tmp_path):
+    """IFC allows a RefDirection not perpendicular to its Axis (its projection is the x axis),
+    an element without ObjectPlacement (the world frame), and an opening's extrusion may be
+    broken: the house comes out the same, the opening warned about."""
+    import ifcopenshell
+
+    path = tmp_path / "odd.ifc"
+    write_ifc(house(), path)
+    reference, _ = import_ifc(path, BimImportConfig())
+    model = ifcopenshell.open(str(path))
+    building = model.by_type("IfcBuilding")[0]
+    building.ObjectPlacement.RelativePlacement.RefDirection = model.createIfcDirection((1.0, 0.0, 0.3))
+    model.by_type("IfcBuildingStorey")[0].ObjectPlacement = None  # (the ground storey sits at the origin)
+    opening = next(o for o in model.by_type("IfcOpeningElement") if o.VoidsElements[0].RelatingBuildingElement.Name == "I0")
+    next(r for r in opening.Representation.Representations).Items[0].ExtrudedDirection = model.createIfcDirection((0.0, 0.0, 0.0))
+    model.write(str(path))
+    messages = []
+    plane_map, _ = import_ifc(path, BimImportConfig(), log=messages.append)
+    assert plane_map.T_W_B is None or np.allclose(plane_map.T_W_B[3:], [0, 0, 0, 1], atol=1e-9)
+    assert len(plane_map.faces) == len(reference.faces)
+    assert len(messages) == 1 and opening.GlobalId in messages[0]
+    by_id = {f.id: f for f in reference.faces}
+    for f in plane_map.faces:
+        assert np.allclose(f.plane, by_id[f.id].plane, atol=1e-9)
+        # the inner wall's door is not cut without its geometry: its faces keep the area
+        assert f.area >= by_id[f.id].area - 1e-9
+
+
+@pytest.mark.parametrize("target", ["folder", "under_a_file", "device"])
+def test_an_output_that_cannot_be_written_is_one_line(tmp_path, target):
+    model = tmp_path / "house.ifc"
+    write_ifc(house(), model)
+    (tmp_path / "a_file").write_text("")
+    os.mkfifo(tmp_path / "fifo")  # (a special file: not /dev/null, which a broken writer would replace)
+    out = {"folder": tmp_path, "under_a_file": tmp_path / "a_file" / "planes.json", "device": tmp_path / "fifo"}[target]
+    result = CliRunner().invoke(app, ["bim", str(model), "-o", str(out)])
+    assert result.exit_code == 2 and "Traceback" not in result.output
+    assert len(result.stderr.strip().splitlines()) == 1 and str(out) in result.stderr
+    assert not list(tmp_path.glob("*.tmp")) and (tmp_path / "a_file").read_text() == ""

@@ -57,7 +57,7 @@ def run():
 
 def test_every_landmark_is_read_from_the_graph(run):
     plan, backend, _ = run
-    planes = observed_planes_isam2(backend.graph, backend.landmarks.items)
+    planes, _ = observed_planes_isam2(backend.graph, backend.landmarks.items)
     assert len(planes) == len(backend.landmarks.items)
     with_factor = {p.landmark for p in planes if p.bim_factor is not None}
     assert with_factor == set(backend.graph.bim_index)
@@ -75,7 +75,7 @@ def test_the_read_out_joint_marginals_are_the_graphs_at_its_estimate(run):
     where it last relinearised each variable: here up to 30 % apart, through the robust
     kernels' weights)."""
     _, backend, _ = run
-    planes = {p.landmark: p for p in observed_planes_isam2(backend.graph, backend.landmarks.items)}
+    planes = {p.landmark: p for p in observed_planes_isam2(backend.graph, backend.landmarks.items)[0]}
     marginals = gtsam.Marginals(backend.graph.batch(), backend.graph.estimate())
     for lm in backend.landmarks.items[::3]:
         keys = [E, X(lm.anchor), L(lm.id)]
@@ -84,7 +84,7 @@ def test_the_read_out_joint_marginals_are_the_graphs_at_its_estimate(run):
 
 def test_outputs_are_written_and_consistent_with_the_truth(run, tmp_path):
     plan, backend, results = run
-    planes = observed_planes_isam2(backend.graph, backend.landmarks.items)
+    planes, _ = observed_planes_isam2(backend.graph, backend.landmarks.items)
     camera = Camera(width=640, height=480, fx=525.0, fy=525.0, cx=319.5, cy=239.5)
     cfg = DeviationConfig()
     data = write_deviation_outputs(tmp_path, plan, planes, results[-1].T_B_S, [r.T_B_C for r in results], camera, cfg)
@@ -295,7 +295,7 @@ def test_online_judgement_overrules_a_moved_wall_seen_first(judge_every):
     cfg.isam2.judge_every = judge_every
     backend = Backend(plan, cfg, scene.initial)
     results = [backend.process(kf) for kf in scene.keyframes]
-    planes = observed_planes_isam2(backend.graph, backend.landmarks.items)
+    planes, _ = observed_planes_isam2(backend.graph, backend.landmarks.items)
     data = assess(plan, planes, inverse(results[-1].T_B_S), DeviationConfig())
     deviating = sorted(f.face_id for f in data.faces if f.status == "deviating")
     if judge_every:

@@ -70,22 +70,21 @@ def test_run_writes_every_output(world, tmp_path, mode):
         assert line in printed, (line, result.output)
 
 
-def test_crash_mid_run_leaves_valid_outputs(world, tmp_path):
-    """A malformed keyframe stops an online run with a one-line error naming the line; what was
-    written up to there stays readable."""
+def test_crash_mid_run_leaves_valid_outputs(world, tmp_path, monkeypatch):
+    """An online run stopped at keyframe 40 (Ctrl-C here) leaves what it wrote up to there
+    readable, and no deviation report."""
     _, root = world
-    broken = tmp_path / "seq"
-    broken.mkdir()
-    (broken / "sequence.json").write_text((root / "sequence.json").read_text())
-    (broken / "planes.json").write_text((root / "planes.json").read_text())
-    lines = (root / "keyframes.jsonl").read_text().splitlines()
-    lines[40] = lines[40].replace('"T_S_C": [', '"T_S_C": [9, ')
-    (broken / "keyframes.jsonl").write_text("\n".join(lines) + "\n")
+    process = Backend.process
+
+    def interrupted_at_40(self, kf):
+        if kf.index == 40:
+            raise KeyboardInterrupt
+        return process(self, kf)
+
+    monkeypatch.setattr(Backend, "process", interrupted_at_40)
     out = tmp_path / "out"
-    result = run(broken, "-o", out)
-    assert result.exit_code == 3
-    message = result.output.strip()
-    assert "\n" not in message and "line 41" in message and "T_S_C" in message
+    result = run(root, "-o", out)
+    assert result.exit_code != 0
     assert len(read_tum(out / "trajectory_bim.tum")[0]) == 40
     assert len(read_tum(out / "trajectory_slam.tum")[0]) == 40
     summary = json.loads((out / "summary.json").read_text())
@@ -93,11 +92,32 @@ def test_crash_mid_run_leaves_valid_outputs(world, tmp_path):
     json.loads((out / "associations.json").read_text())
     extrinsic = json.loads((out / "extrinsic.json").read_text())
     assert extrinsic["keyframe"] == 39 and np.isfinite(extrinsic["covariance"]).all()
-    # a run that stops writes no deviation report
     assert not any((out / name).exists() for name in ("deviations.json", "deviations.csv", "deviations.bcf"))
 
 
-def test_a_run_into_an_earlier_runs_folder_leaves_nothing_of_it_standing(world, tmp_path):
+@pytest.mark.parametrize("mode", ["online", "offline"])
+def test_a_malformed_line_is_one_line_and_keeps_an_earlier_run(world, tmp_path, mode):
+    """A malformed keyframe is a one-line error naming its line and field, found before
+    anything is written: the earlier run in the output folder stays as it was."""
+    _, root = world
+    out = tmp_path / "out"
+    assert run(root, "-o", out, "--mode", mode).exit_code == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    broken = tmp_path / "seq"
+    broken.mkdir()
+    for name in ("sequence.json", "planes.json"):
+        (broken / name).write_text((root / name).read_text())
+    lines = (root / "keyframes.jsonl").read_text().splitlines()
+    lines[40] = lines[40].replace('"T_S_C": [', '"T_S_C": [9, ')
+    (broken / "keyframes.jsonl").write_text("\n".join(lines) + "\n")
+    result = run(broken, "-o", out, "--mode", mode)
+    assert result.exit_code == 3
+    message = result.output.strip()
+    assert "\n" not in message and "line 41" in message and "T_S_C" in message
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_a_run_into_an_earlier_runs_folder_leaves_nothing_of_it_standing(world, tmp_path, monkeypatch):
     """The files an earlier run wrote at its end (its deviation report) and `bimgraph eval`'s
     metrics of it go when a new run starts there: stopped midway, the new run would otherwise
     have the earlier run's report beside its own files."""
@@ -105,13 +125,15 @@ def test_a_run_into_an_earlier_runs_folder_leaves_nothing_of_it_standing(world, 
     out = tmp_path / "out"
     assert run(root, "-o", out).exit_code == 0
     (out / "metrics.json").write_text("{}")
-    lines = (root / "keyframes.jsonl").read_text().splitlines()
-    broken = tmp_path / "seq"
-    broken.mkdir()
-    for name in ("sequence.json", "planes.json"):
-        (broken / name).write_text((root / name).read_text())
-    (broken / "keyframes.jsonl").write_text("\n".join(lines[:20] + ["{"]) + "\n")
-    assert run(broken, "-o", out).exit_code == 3
+    process = Backend.process
+
+    def interrupted_at_20(self, kf):
+        if kf.index == 20:
+            raise KeyboardInterrupt
+        return process(self, kf)
+
+    monkeypatch.setattr(Backend, "process", interrupted_at_20)
+    assert run(root, "-o", out).exit_code != 0
     assert json.loads((out / "summary.json").read_text())["keyframes"] == 20
     assert not any((out / name).exists() for name in ("deviations.json", "deviations.csv", "deviations.bcf", "metrics.json"))
 
@@ -184,3 +206,47 @@ def test_summary_lists_the_deviating_walls(world, tmp_path):
     rows = dict((label, text) for label, text in run_summary(tmp_path) if label == "deviating")
     assert rows == {"deviating": f"{face['wall_name'] or face['wall_guid']} ({face['face_id']}): offset +7.3 ± 0.4 cm, "
                                  f"tilt {face['tilt_deg']:.2f} ± {face['tilt_sigma_deg']:.2f} deg"}
+
+
+@pytest.mark.parametrize("mode", ["online", "offline"])
+def test_a_sequence_of_one_keyframe_runs(world, tmp_path, mode):
+    """No step to measure the odometry's noise by (offline once crashed there)."""
+    _, root = world
+    one = tmp_path / "seq"
+    one.mkdir()
+    for name in ("sequence.json", "planes.json"):
+        (one / name).write_text((root / name).read_text())
+    (one / "keyframes.jsonl").write_text((root / "keyframes.jsonl").read_text().splitlines()[0] + "\n")
+    result = run(one, "-o", tmp_path / "out", "--mode", mode)
+    assert result.exit_code == 0, result.output
+    assert len(read_tum(tmp_path / "out" / "trajectory_bim.tum")[0]) == 1
+
+
+@pytest.mark.parametrize("case", ["nan_pose", "negative_d", "empty", "output_is_a_file"])
+def test_bad_input_or_output_is_one_line(world, tmp_path, case):
+    """NaN (which would go singular, or into the outputs), a plane behind its camera, no
+    keyframes, an output folder that is a file: one line, no traceback, nothing written."""
+    _, root = world
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    for name in ("sequence.json", "planes.json"):
+        (seq / name).write_text((root / name).read_text())
+    lines = (root / "keyframes.jsonl").read_text().splitlines()
+    if case == "nan_pose":
+        data = json.loads(lines[5])
+        data["T_S_C"][0] = float("nan")  # (json writes it NaN, as numpy-minded writers do)
+        lines[5] = json.dumps(data)
+    elif case == "negative_d":
+        data = json.loads(lines[5])
+        data["planes"][0]["d"] = -abs(data["planes"][0]["d"])
+        lines[5] = json.dumps(data)
+    elif case == "empty":
+        lines = []
+    (seq / "keyframes.jsonl").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    if case == "output_is_a_file":
+        out.write_text("")
+    result = run(seq, "-o", out)
+    assert result.exit_code in (2, 3) and "Traceback" not in result.output
+    assert len(result.output.strip().splitlines()) == 1, result.output
+    assert out.is_file() if case == "output_is_a_file" else not out.exists()

@@ -79,7 +79,8 @@ class OdometryModel:
 
     def step_sigmas(self, keyframes: list[Keyframe]) -> tuple[float, float]:
         """The noise per step and axis, rotation (rad) and translation (m), on average."""
-        diag = np.array([self._given_cov(kf) for kf in keyframes[1:]]).diagonal(axis1=1, axis2=2).mean(axis=0) \
+        steps = keyframes[1:] or keyframes  # (a walk of one keyframe has no step: the noise as given)
+        diag = np.array([self._given_cov(kf) for kf in steps]).diagonal(axis1=1, axis2=2).mean(axis=0) \
             * np.repeat(self.variance, 3)
         return float(np.sqrt(diag[:3].mean())), float(np.sqrt(diag[3:].mean()))
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from bimgraph.backend.alignment import Alignment, align_from_seeds
-from bimgraph.backend.graph import singular_as_error
+from bimgraph.backend.graph import BatchSolver, singular_as_error
 from bimgraph.backend.offline import run_offline
 from bimgraph.backend.online import Backend
 from bimgraph.backend.records import Listener, Results
@@ -21,8 +21,9 @@ from bimgraph.config import Config
 from bimgraph.deviations.graph import observed_planes_isam2
 from bimgraph.deviations.outputs import DEVIATION_FILES, write_deviation_outputs
 from bimgraph.errors import ConfigError, InputError
-from bimgraph.geometry import normalise_plane, plane_from_frame, pose_from_tum
-from bimgraph.sequence.format import Keyframe, SequenceMeta, iter_keyframes, load_meta, load_sequence
+from bimgraph.files import ensure_folder
+from bimgraph.geometry import inverse, normalise_plane, plane_from_frame, pose_from_tum
+from bimgraph.sequence.format import Keyframe, SequenceMeta, load_meta, load_sequence
 
 
 def load_model(path: Path, cfg: Config) -> PlaneMap:
@@ -126,15 +127,16 @@ def clear_previous_run(out_dir: Path) -> None:
     evaluation), before this run writes there: a run that stops midway writes none of them,
     and the earlier run's would stand beside it as if they were its own."""
     for name in _END_OF_RUN_FILES:
-        (Path(out_dir) / name).unlink(missing_ok=True)
+        (ensure_folder(out_dir) / name).unlink(missing_ok=True)
 
 
 @singular_as_error()
 def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = None, config: Config | None = None,
         seeds: list[tuple[int, int, str]] = (), oracle: bool = False, listener: Listener | None = None,
         progress: Callable[[int, int | None], None] | None = None, inputs: Inputs | None = None) -> Results | None:
-    """Run the backend on a sequence folder and write the outputs to `out_dir`. Online runs
-    read and process keyframe by keyframe, writing as they go; they return None. `inputs`,
+    """Run the backend on a sequence folder and write the outputs to `out_dir`. The sequence
+    is read and validated whole first; online runs then process it keyframe by keyframe,
+    writing as they go, and return None. `inputs`,
     if given, are those of `load_inputs(seq_dir, bim, config)`."""
     cfg = config or Config()
     seq_dir = Path(seq_dir)
@@ -145,8 +147,13 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
     # Absolute, so that `bimgraph view OUTDIR` finds them from anywhere.
     named = {"sequence": str(seq_dir.resolve()), "model": str(Path(inputs.model).resolve())}
     truth = oracle_of(seq_dir) if oracle else None
+    # the whole sequence is read and validated before anything is written: a bad line must
+    # not leave an earlier run's outputs in `out_dir` overwritten by a part of this one
+    sequence = load_sequence(seq_dir)
+    if not sequence.keyframes:
+        raise InputError(f"{seq_dir}: the sequence has no keyframes")
+    ensure_folder(out_dir)  # (before the work, not after it)
     if mode == "offline" or seeds:
-        sequence = load_sequence(seq_dir)
         if seeds:
             initial = seed_alignment(sequence.keyframes, plane_map, list(seeds), cfg, initial)
     if mode == "offline":
@@ -157,7 +164,7 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
                                 cfg.deviations)
         return results
 
-    keyframes = sequence.keyframes if seeds else iter_keyframes(seq_dir)
+    keyframes = sequence.keyframes
     # the extrinsic's covariance per keyframe only for a listener (the viewer plots it); the
     # writer asks for it when it writes
     backend = Backend(plane_map, cfg.backend, initial, listener, truth, covariance=listener is not None)
@@ -175,6 +182,7 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
         raise
     writer.snapshot(backend, finished=True, timings={"total_s": time.perf_counter() - start})
     writer.close()
-    write_deviation_outputs(out_dir, plane_map, observed_planes_isam2(backend.graph, backend.landmarks.current()),
-                            writer.last.T_B_S, writer.T_B_C, meta.camera, cfg.deviations)
+    planes, T_S_B = observed_planes_isam2(backend.graph, backend.landmarks.current(),
+                                          BatchSolver(cfg.backend.offline.max_iterations, cfg.backend.offline.relative_error_tol))
+    write_deviation_outputs(out_dir, plane_map, planes, inverse(T_S_B), writer.T_B_C, meta.camera, cfg.deviations)
     return None

@@ -14,7 +14,7 @@ import numpy as np
 
 from bimgraph.backend.landmarks import KEPT, Landmark
 from bimgraph.backend.records import KeyframeResult, Results
-from bimgraph.files import write_json
+from bimgraph.files import ensure_folder, write_json
 from bimgraph.geometry import plane_from_frame, pose_to_tum
 from bimgraph.sequence.tum import format_tum, write_tum
 
@@ -125,7 +125,7 @@ class OnlineWriter:
     def __init__(self, out_dir: Path, write_every: int, inputs: dict | None = None):
         self.inputs = inputs
         self.out = Path(out_dir)
-        self.out.mkdir(parents=True, exist_ok=True)
+        ensure_folder(self.out)
         self.write_every = write_every
         self.bim = TumAppender(self.out / TRAJECTORY_BIM)
         self.slam = TumAppender(self.out / TRAJECTORY_SLAM)
@@ -174,7 +174,7 @@ class OnlineWriter:
 def write_results(out_dir: Path, results: Results, inputs: dict | None = None) -> None:
     """All outputs of a finished run at once (offline runs)."""
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    ensure_folder(out)
     write_tum(out / TRAJECTORY_BIM, results.stamps, results.T_B_C)
     write_tum(out / TRAJECTORY_SLAM, results.stamps, results.T_S_C)
     write_json(out / EXTRINSIC, extrinsic_record(results.T_B_S, results.cov_T_B_S, results.unobservable, None))

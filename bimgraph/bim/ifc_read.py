@@ -95,7 +95,10 @@ class ModelReader:
         return T
 
     def placement(self, element) -> np.ndarray:
-        """T_W_E of an element's object placement, in metres."""
+        """T_W_E of an element's object placement, in metres (the world frame where it has
+        none: the attribute is optional, and geometry kernels read it so)."""
+        if element.ObjectPlacement is None:
+            return np.eye(4)
         return self._local_placement(element.ObjectPlacement)
 
     def _local_placement(self, placement) -> np.ndarray:
@@ -229,7 +232,13 @@ def _axis2placement(placement) -> np.ndarray:
 @functools.lru_cache(maxsize=4096)
 def _a2p(spelling: str, location: tuple, axis: tuple | None, ref: tuple | None) -> np.ndarray:
     """`spelling`, the values' repr, keeps -0.0 and 0.0 apart, which tuple equality does not."""
-    M = ifcopenshell.util.placement.a2p(location, np.array(axis or (0, 0, 1)), np.array(ref or (1, 0, 0)))
+    z = np.array(axis or (0, 0, 1), dtype=float)
+    z /= np.linalg.norm(z)
+    # IFC allows a RefDirection that is not perpendicular to the Axis: its projection onto the
+    # plane across the axis is the x axis (as geometry kernels take it), so the frame is rigid
+    x = np.array(ref or (1, 0, 0), dtype=float)
+    x = x - (x @ z) * z
+    M = ifcopenshell.util.placement.a2p(location, z, x / np.linalg.norm(x))
     M.flags.writeable = False
     return M
 
@@ -317,7 +326,10 @@ def _prism(solid) -> tuple[np.ndarray, np.ndarray] | None:
         return None
     n = len(profile)
     direction = np.asarray(solid.ExtrudedDirection.DirectionRatios, dtype=float)
-    direction = direction / np.linalg.norm(direction) * solid.Depth
+    length = float(np.linalg.norm(direction))
+    if not (length > 0 and solid.Depth > 0 and np.isfinite(direction).all()):
+        return None  # degenerate: left to the geometry kernel, which warns and skips it
+    direction = direction / length * solid.Depth
     bottom = np.column_stack([profile, np.zeros(n)])
     V = np.vstack([bottom, bottom + direction])
     caps = _corner_ids(shapely.constrained_delaunay_triangles(polygon), profile, np.arange(n))

@@ -32,7 +32,7 @@ _ON_PLANE_TOL_M = 0.01
 class Space(BaseModel):
     """The IfcSpace (room) a face section bounds."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     guid: str
     name: str = ""
 
@@ -46,7 +46,7 @@ class BimFace(BaseModel):
     `centre` are of the polygon minus its holes and are computed when omitted.
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     id: str
     wall_guid: str
     wall_name: str = ""
@@ -89,7 +89,7 @@ class BimFace(BaseModel):
 
 
 class PlaneMap(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     format: Literal["bimgraph.planemap"] = FORMAT
     version: Literal[1] = VERSION
     source: str = ""

@@ -17,6 +17,7 @@ from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import DeviationConfig
 from bimgraph.deviations.report import DeviationsFile
 from bimgraph.errors import InputError
+from bimgraph.files import ensure_folder
 from bimgraph.geometry import pose_from_tum
 
 BCF_FILE = "deviations.bcf"
@@ -54,7 +55,7 @@ def write_bcf(deviations: DeviationsFile, plane_map: PlaneMap, path: Path, cfg: 
         topic.add_visinfo_handler(VisualizationInfoHandler(info))
         count += 1
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    ensure_folder(path.parent)
     bcf.save(path)
     return count
 

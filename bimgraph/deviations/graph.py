@@ -54,13 +54,19 @@ def observed_planes(landmarks: Sequence, values: gtsam.Values, joint: Callable[[
             for lm in landmarks]
 
 
-def observed_planes_isam2(graph, landmarks: Sequence) -> list[ObservedPlane]:
+def observed_planes_isam2(graph, landmarks: Sequence, solve: Callable | None = None) -> tuple[list[ObservedPlane], np.ndarray]:
     """The same from the backend's online `IncrementalGraph` (its `isam`, `batch` and
-    `bim_index`): every landmark at the current iSAM2 estimate, the joint marginals of them
-    all at once (`JointMarginals`: iSAM2's one landmark at a time took 8 s for the 211
-    landmarks of a 600-keyframe site walk)."""
+    `bim_index`), and the `T_S_B` they are measured with. Each face's own plane-to-BIM factor
+    is taken out by a linear step from a minimum of the whole graph, which iSAM2's estimate is
+    not (its relinearisation threshold leaves it short: on a site walk a sound face read -10.7
+    cm at iSAM2's estimate, -5.2 at the minimum, -5.3 re-solved without its factor): so the
+    graph is first solved from there by `solve(graph, values)` (a `BatchSolver`), if given.
+    The joint marginals of every landmark at once (`JointMarginals`: iSAM2's one landmark at a
+    time took 8 s for the 211 landmarks of a 600-keyframe site walk)."""
     factors = graph.isam.getFactorsUnsafe()
     bim_factors = {j: factors.at(i) for j, i in graph.bim_index.items()}
-    values = graph.estimate()
-    joint = JointMarginals(graph.batch(), values, bim_keys(landmarks))
-    return observed_planes(landmarks, values, joint, bim_factors)
+    batch, values = graph.batch(), graph.estimate()
+    if solve is not None:
+        values = solve(batch, values)
+    joint = JointMarginals(batch, values, bim_keys(landmarks))
+    return observed_planes(landmarks, values, joint, bim_factors), values.atPose3(E).matrix()

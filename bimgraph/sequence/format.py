@@ -46,7 +46,7 @@ def _check_square_psd(value, size: int):
 class Camera(BaseModel):
     """Pinhole intrinsics of the depth (and colour) images; depth PNG value = metres * depth_scale."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     width: int = Field(gt=0)
     height: int = Field(gt=0)
     fx: float = Field(gt=0)
@@ -63,7 +63,7 @@ class Camera(BaseModel):
 class InitialAlignment(BaseModel):
     """The user's initial (manual) alignment `T_B_S` and its one-sigma uncertainty."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     T_B_S: Pose7
     sigma_rot_deg: float = Field(default=2.0, gt=0)
     sigma_trans_m: float = Field(default=0.2, gt=0)
@@ -76,9 +76,9 @@ class PlaneObservation(BaseModel):
     its Unit3 basis, then d). `polygon` is the extent in C.
     """
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     n: Vec3
-    d: float
+    d: float = Field(gt=0)
     cov: Mat3 | None = None
     polygon: list[Vec3] | None = None
     area: float | None = Field(default=None, ge=0)
@@ -108,7 +108,7 @@ class Keyframe(BaseModel):
     the 6x6 covariance of the front-end pose in gtsam's Pose3 tangent order (rotation, then
     translation); `depth`/`rgb` are image paths relative to the sequence folder."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     index: int = Field(ge=0)
     stamp: float
     T_S_C: Pose7
@@ -138,7 +138,7 @@ class SequenceMeta(BaseModel):
     """sequence.json. `model` is the as-planned IFC or plane map, relative to the folder or
     absolute; `initial_alignment` is the user's manual T_B_S."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     format: Literal["bimgraph.sequence"] = FORMAT
     version: Literal[1] = VERSION
     name: str = ""
@@ -171,13 +171,13 @@ def load_meta(root: Path) -> SequenceMeta:
 
 
 def iter_keyframes(root: Path):
-    """Yield keyframes one by one (online use), validating each line as it comes."""
+    """Yield keyframes one by one, validating each line as it comes."""
     path = Path(root) / KEYFRAMES_FILE
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     previous = None
-    with path.open() as fh:
-        for lineno, line in enumerate(fh, start=1):
+    with path.open(errors="strict") as fh:
+        for lineno, line in _lines(fh, path):
             if not line.strip():
                 continue
             where = f"{path}: line {lineno}"
@@ -190,6 +190,16 @@ def iter_keyframes(root: Path):
                 raise FormatError(f"{where}: index: {kf.index} does not follow {previous.index}")
             previous = kf
             yield kf
+
+
+def _lines(fh, path: Path):
+    """(number, text) of each line; a file that is not text is a FormatError."""
+    lineno = 0
+    try:
+        for lineno, line in enumerate(fh, start=1):
+            yield lineno, line
+    except UnicodeDecodeError:
+        raise FormatError(f"{path}: line {lineno + 1}: not text (UTF-8)") from None
 
 
 def load_sequence(root: Path) -> Sequence:

@@ -20,6 +20,7 @@ from scipy.spatial.transform import Rotation
 
 from bimgraph.config import Config
 from bimgraph.errors import ConfigError, InputError
+from bimgraph.files import ensure_folder
 from bimgraph.geometry import make_pose
 from bimgraph.sequence.format import Camera, InitialAlignment, Keyframe, Sequence, SequenceMeta, save_sequence
 from bimgraph.sequence.groundtruth import LABELS_FOLDER, GroundTruth, pose7, rounded, write_groundtruth
@@ -130,7 +131,7 @@ def simulate(opts: SimOptions, cfg: Config, log: Callable[[str], None] = lambda 
         clock = now
 
     out = Path(opts.output)
-    out.mkdir(parents=True, exist_ok=True)
+    ensure_folder(out)
     if scenario is not None:
         from bimgraph.bim.ifc_write import write_ifc
         from bimgraph.sim.scenarios import make

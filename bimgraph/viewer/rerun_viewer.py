@@ -28,6 +28,8 @@ import numpy as np
 
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import ViewerConfig
+from bimgraph.errors import InputError
+from bimgraph.files import ensure_folder
 from bimgraph.sequence.format import Camera, PlaneObservation
 from bimgraph.viewer import blueprint as bp
 from bimgraph.viewer.drawing import angles_deg, closed_rings, plane_centre_C, project, segments
@@ -61,7 +63,9 @@ def open_recording(rrd: Path | None = None, spawn: bool = False, camera: Camera 
     recording = rr.RecordingStream(application_id)
     blueprint = bp.default_blueprint(None if camera is None else (camera.width, camera.height))
     if rrd is not None:
-        Path(rrd).parent.mkdir(parents=True, exist_ok=True)
+        ensure_folder(Path(rrd).parent)
+        if Path(rrd).is_dir():
+            raise InputError(f"{rrd}: is a folder, not a recording file")
     if rrd is not None and spawn:
         recording.spawn(connect=False)
         recording.set_sinks(rr.GrpcSink(), rr.FileSink(str(rrd)), default_blueprint=blueprint)

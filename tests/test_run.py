@@ -36,6 +36,18 @@ def run(*args):
     return CliRunner().invoke(app, ["run", *map(str, args)])
 
 
+def interrupt_at(monkeypatch, k: int) -> None:
+    """The online run stops at keyframe k as at Ctrl-C."""
+    process = Backend.process
+
+    def interrupted(self, kf):
+        if kf.index == k:
+            raise KeyboardInterrupt
+        return process(self, kf)
+
+    monkeypatch.setattr(Backend, "process", interrupted)
+
+
 @pytest.mark.parametrize("mode", ["online", "offline"])
 def test_run_writes_every_output(world, tmp_path, mode):
     scene, root = world
@@ -74,14 +86,7 @@ def test_crash_mid_run_leaves_valid_outputs(world, tmp_path, monkeypatch):
     """An online run stopped at keyframe 40 (Ctrl-C here) leaves what it wrote up to there
     readable, and no deviation report."""
     _, root = world
-    process = Backend.process
-
-    def interrupted_at_40(self, kf):
-        if kf.index == 40:
-            raise KeyboardInterrupt
-        return process(self, kf)
-
-    monkeypatch.setattr(Backend, "process", interrupted_at_40)
+    interrupt_at(monkeypatch, 40)
     out = tmp_path / "out"
     result = run(root, "-o", out)
     assert result.exit_code != 0
@@ -125,14 +130,7 @@ def test_a_run_into_an_earlier_runs_folder_leaves_nothing_of_it_standing(world, 
     out = tmp_path / "out"
     assert run(root, "-o", out).exit_code == 0
     (out / "metrics.json").write_text("{}")
-    process = Backend.process
-
-    def interrupted_at_20(self, kf):
-        if kf.index == 20:
-            raise KeyboardInterrupt
-        return process(self, kf)
-
-    monkeypatch.setattr(Backend, "process", interrupted_at_20)
+    interrupt_at(monkeypatch, 20)
     assert run(root, "-o", out).exit_code != 0
     assert json.loads((out / "summary.json").read_text())["keyframes"] == 20
     assert not any((out / name).exists() for name in ("deviations.json", "deviations.csv", "deviations.bcf", "metrics.json"))

@@ -125,9 +125,10 @@ _END_OF_RUN_FILES = (*DEVIATION_FILES, METRICS)
 def clear_previous_run(out_dir: Path) -> None:
     """Remove what an earlier run into `out_dir` wrote at its end (its deviation report, its
     evaluation), before this run writes there: a run that stops midway writes none of them,
-    and the earlier run's would stand beside it as if they were its own."""
+    and the earlier run's would stand beside it as if they were its own. (`out_dir` is a
+    folder: `run` made sure of it.)"""
     for name in _END_OF_RUN_FILES:
-        (ensure_folder(out_dir) / name).unlink(missing_ok=True)
+        (Path(out_dir) / name).unlink(missing_ok=True)
 
 
 @singular_as_error()
@@ -153,9 +154,8 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
     if not sequence.keyframes:
         raise InputError(f"{seq_dir}: the sequence has no keyframes")
     ensure_folder(out_dir)  # (before the work, not after it)
-    if mode == "offline" or seeds:
-        if seeds:
-            initial = seed_alignment(sequence.keyframes, plane_map, list(seeds), cfg, initial)
+    if seeds:
+        initial = seed_alignment(sequence.keyframes, plane_map, list(seeds), cfg, initial)
     if mode == "offline":
         results = run_offline(sequence.keyframes, plane_map, cfg.backend, initial, listener, truth)
         clear_previous_run(out_dir)
@@ -164,7 +164,6 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
                                 cfg.deviations)
         return results
 
-    keyframes = sequence.keyframes
     # the extrinsic's covariance per keyframe only for a listener (the viewer plots it); the
     # writer asks for it when it writes
     backend = Backend(plane_map, cfg.backend, initial, listener, truth, covariance=listener is not None)
@@ -172,7 +171,7 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
     writer = OnlineWriter(out_dir, cfg.backend.write_every, named)
     start = time.perf_counter()
     try:
-        for n, kf in enumerate(keyframes, start=1):
+        for n, kf in enumerate(sequence.keyframes, start=1):
             writer.keyframe(backend.process(kf), backend)
             if progress is not None:
                 progress(n, None)

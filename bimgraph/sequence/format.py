@@ -176,7 +176,7 @@ def iter_keyframes(root: Path):
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     previous = None
-    with path.open(errors="strict") as fh:
+    with path.open() as fh:
         for lineno, line in _lines(fh, path):
             if not line.strip():
                 continue

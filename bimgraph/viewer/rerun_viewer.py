@@ -63,9 +63,9 @@ def open_recording(rrd: Path | None = None, spawn: bool = False, camera: Camera 
     recording = rr.RecordingStream(application_id)
     blueprint = bp.default_blueprint(None if camera is None else (camera.width, camera.height))
     if rrd is not None:
-        ensure_folder(Path(rrd).parent)
         if Path(rrd).is_dir():
             raise InputError(f"{rrd}: is a folder, not a recording file")
+        ensure_folder(Path(rrd).parent, rrd)
     if rrd is not None and spawn:
         recording.spawn(connect=False)
         recording.set_sinks(rr.GrpcSink(), rr.FileSink(str(rrd)), default_blueprint=blueprint)

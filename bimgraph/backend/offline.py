@@ -48,7 +48,9 @@ from factors.plane import predict_local_plane
 
 class OfflineEstimator:
     def __init__(self, plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,
-                 listener: Listener | None = None, oracle: Oracle | None = None):
+                 listener: Listener | None = None, oracle: Oracle | None = None, causal: Backend | None = None):
+        """`causal`: an online run's `Backend` that has seen the whole sequence, whose graph and
+        associations `refine` starts from instead of a causal pass of its own."""
         self.cfg = cfg
         self.listener = listener or Listener()
         # the causal pass makes no results (`Backend.advance`; the listener hears the smoothed
@@ -58,12 +60,13 @@ class OfflineEstimator:
         # extrinsic per keyframe, so iSAM2 orders the variables its own way (the online
         # ordering makes its updates dearer; on deviation seed 2 it also led the rounds to the
         # other of two nearly equal consensuses, 10.5 cm off, before `_challenge`: now 2.6 cm)
-        self.online = Backend(plane_map, cfg, initial, None, oracle, drift_every=0, judge_every=0, merge=False,
-                              extrinsic_last=False)
+        self.online = causal or Backend(plane_map, cfg, initial, None, oracle, drift_every=0, judge_every=0,
+                                        merge=False, extrinsic_last=False)
         self.faces, self.bim, self.landmarks = self.online.faces, self.online.bim, self.online.landmarks
         self.oracle = oracle
         self.judge = RobustAlignment(self.faces, self.online.build, self.landmarks, cfg.offline)
         self.odometry = OdometryModel(self.online.build)  # the front-end's drift and noise, as measured
+        self.odometry.drift = self.online.odometry.drift  # (an online run's, as a start)
         # (landmark, anchor, keyframe, plane index) -> its observation factor: the graph is
         # rebuilt a score of times, and its plane factors change only where landmarks do
         self._observation_factors: dict[tuple[int, int, int, int], gtsam.NonlinearFactor] = {}
@@ -74,7 +77,12 @@ class OfflineEstimator:
         start = time.perf_counter()
         for kf in keyframes:
             self.online.advance(kf)
-        timings = {"online_pass_s": time.perf_counter() - start}
+        return self.refine(keyframes, {"online_pass_s": time.perf_counter() - start})
+
+    def refine(self, keyframes: list[Keyframe], timings: dict | None = None) -> Results:
+        """The rounds, from the causal pass's graph and associations (`keyframes` are the ones it saw)."""
+        start = time.perf_counter()
+        timings = {} if timings is None else timings
         values = self.online.graph.estimate()
         observations = {kf.index: observations_of(kf, self.online.build) for kf in keyframes}
 
@@ -119,7 +127,7 @@ class OfflineEstimator:
                 t_opt += time.perf_counter() - t2
             if not changed:
                 break
-        timings.update(optimisation_s=t_opt, bim_association_s=t_assoc, total_s=time.perf_counter() - start)
+        timings.update(optimisation_s=t_opt, bim_association_s=t_assoc, total_s=timings.get("online_pass_s", 0.0) + time.perf_counter() - start)
         return self._results(keyframes, values, marginals, timings, rounds)
 
     def _challenge(self, keyframes: list[Keyframe], observations, values: gtsam.Values,

@@ -12,7 +12,7 @@ import numpy as np
 
 from bimgraph.backend.alignment import Alignment, align_from_seeds
 from bimgraph.backend.graph import BatchSolver, singular_as_error
-from bimgraph.backend.offline import run_offline
+from bimgraph.backend.offline import OfflineEstimator, run_offline
 from bimgraph.backend.online import Backend
 from bimgraph.backend.records import Listener, Results
 from bimgraph.backend.results import METRICS, OnlineWriter, write_results
@@ -181,7 +181,12 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
         raise
     writer.snapshot(backend, finished=True, timings={"total_s": time.perf_counter() - start})
     writer.close()
-    planes, T_S_B = observed_planes_isam2(backend.graph, backend.landmarks.current(),
-                                          BatchSolver(cfg.backend.offline.max_iterations, cfg.backend.offline.relative_error_tol))
-    write_deviation_outputs(out_dir, plane_map, planes, inverse(T_S_B), writer.T_B_C, meta.camera, cfg.deviations)
+    if cfg.deviations.online_refine:
+        refined = OfflineEstimator(plane_map, cfg.backend, initial, oracle=truth, causal=backend).refine(sequence.keyframes)
+        planes, T_B_S, T_B_C = refined.observed_planes, refined.T_B_S, refined.T_B_C
+    else:
+        planes, T_S_B = observed_planes_isam2(backend.graph, backend.landmarks.current(),
+                                              BatchSolver(cfg.backend.offline.max_iterations, cfg.backend.offline.relative_error_tol))
+        T_B_S, T_B_C = inverse(T_S_B), writer.T_B_C
+    write_deviation_outputs(out_dir, plane_map, planes, T_B_S, T_B_C, meta.camera, cfg.deviations)
     return None

@@ -31,6 +31,7 @@ class DeviationConfig(Section):
     visibility_max_obliquity_deg: float = Field(70.0, gt=0, le=90, description="...seen at most this obliquely...")
     visibility_min_area_m2: float = Field(0.5, ge=0, description="...and a face is in view if at least this much of it is in view and not occluded by other faces")
     min_expected_keyframes: int = Field(5, ge=1, description="a never-observed face in view in at least this many keyframes is possibly not built")
+    online_refine: bool = Field(True, description="after an online run, measure the walls where the offline rounds take its graph (the drift and odometry noise estimated, the robust alignment, re-association), not at its own batch solution: the online graph keeps the given odometry noise, looser than the front-end's (offline estimates it at 0.2-0.4 of it on the simulated walks), so walls built off plan bend its trajectory and sound faces read centimetres off at several sigma (office 2: 8 of 31 faces beyond 3 sigma, none refined). Costs about the offline rounds: 3-5 s on a 600-keyframe walk")
     bcf_author: str = Field("bimgraph", description="author of the BCF topics")
     bcf_view_distance_m: float = Field(3.0, gt=0, description="the BCF viewpoint looks at the face's centre from this far along its normal")
 

@@ -62,6 +62,15 @@ def console():
     return Console(stderr=True)
 
 
+def progress_bar(out, *columns):
+    """A transient progress bar on `out`, shown only on a terminal: elsewhere (a log file, a
+    pipe) rich still ends it with a newline, a blank line before whatever follows it, such as
+    an error that must be one line."""
+    from rich.progress import Progress
+
+    return Progress(*columns, console=out, transient=True, disable=not out.is_terminal)
+
+
 @app.command()
 @friendly_errors
 def config(
@@ -117,39 +126,20 @@ def planes(
     max_dt: float = typer.Option(0.02, "--max-dt", help="Largest stamp difference between a depth image and its trajectory pose (s)."),
     config_file: Optional[Path] = ConfigOption,
 ):
-    """Detect planes in every keyframe's depth image and write them into the keyframes file.
+    """Detect planes in every keyframe's depth image and write them into the keyframes file
+    (a keyframe without a depth image keeps its planes; a sequence without any is refused).
 
     Example (TUM fr1/desk, ORB-SLAM trajectory):
     bimgraph planes rgbd_dataset_freiburg1_desk -t CameraTrajectory.txt --fx 517.3 --fy 516.5 --cx 318.6 --cy 255.3
     """
-    from rich.progress import Progress
-
     from bimgraph.config import load_config
-    from bimgraph.errors import ConfigError
-    from bimgraph.planes.sequence import extract_into, resolve_camera
-    from bimgraph.sequence.format import META_FILE, load_sequence
-    from bimgraph.sequence.tum_rgbd import DEPTH_LIST, load_camera, load_tum_rgbd, read_image_list
+    from bimgraph.planes.sequence import extract_into, open_input
 
     cfg = load_config(config_file)
-    pinhole = (fx, fy, cx, cy)
-    if any(v is not None for v in pinhole) and any(v is None for v in pinhole):
-        raise ConfigError("give all four of --fx --fy --cx --cy")
-    pinhole = pinhole if fx is not None else None
-    camera_file = load_camera(intrinsics) if intrinsics is not None else None
-    if trajectory is not None:
-        stamps, names = read_image_list(seqdir / DEPTH_LIST)
-        first = seqdir / names[0] if names else None
-        camera = resolve_camera(None, camera_file, pinhole, first)
-        seq = load_tum_rgbd(seqdir, trajectory, camera, max_dt=max_dt)
-    elif (seqdir / META_FILE).is_file():
-        seq = load_sequence(seqdir)
-        first = next((seqdir / kf.depth for kf in seq.keyframes if kf.depth), None)
-        camera = resolve_camera(seq, camera_file, pinhole, first)
-    else:
-        raise ConfigError(f"{seqdir}: no {META_FILE}; for a TUM RGB-D folder give --trajectory")
+    seq, camera = open_input(seqdir, trajectory, intrinsics, (fx, fy, cx, cy), max_dt)
     out = console()
-    with Progress(console=out, transient=True) as progress:
-        task = progress.add_task("extracting planes", total=len(seq.keyframes))
+    with progress_bar(out) as progress:
+        task = progress.add_task("extracting planes", total=sum(kf.depth is not None for kf in seq.keyframes))
         report = extract_into(seq, camera, cfg, on_frame=lambda kf, extraction: progress.advance(task))
     for line in report.problems:
         out.print(f"[yellow]skipped[/yellow] {line}", highlight=False, soft_wrap=True)
@@ -171,8 +161,6 @@ def simulate(
 
     Example: bimgraph simulate -o seq --scenario site --keyframes 800 --seed 3
     """
-    from rich.progress import Progress
-
     from bimgraph.config import load_config
     from bimgraph.sim.simulate import SimOptions, simulate as run_simulation
 
@@ -180,7 +168,7 @@ def simulate(
     opts = SimOptions(output=output, scenario=scenario, ifc=ifc, sensor=sensor, keyframes=keyframes, seed=seed)
     opts.check()
     out = console()
-    with Progress(console=out, transient=True) as bar:
+    with progress_bar(out) as bar:
         task = bar.add_task(f"simulating ({sensor})", total=keyframes)
         summary = run_simulation(opts, cfg, log=out.print, progress=lambda done, total: bar.update(task, completed=done))
     drift = summary["drift"]
@@ -208,7 +196,7 @@ def run(
 
     Example: bimgraph run seq -o out --rrd out/run.rrd; rerun out/run.rrd
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
 
     from bimgraph.backend.pipeline import load_inputs, parse_seed, run as run_backend
     from bimgraph.config import load_config
@@ -223,8 +211,7 @@ def run(
 
         viewer, listener = follow_run(inputs, cfg, rrd=rrd, spawn=spawn)
     try:
-        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                      console=out, transient=True) as bar:
+        with progress_bar(out, TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()) as bar:
             task = bar.add_task(f"bimgraph run ({mode})", total=None)
             run_backend(sequence, output, mode=mode, bim=bim_model, config=cfg, seeds=seeds, oracle=oracle,
                         listener=listener, progress=lambda done, total: bar.update(task, completed=done), inputs=inputs)

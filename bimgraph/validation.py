@@ -8,7 +8,7 @@ import numpy as np
 
 from pydantic import BaseModel, ValidationError
 
-from bimgraph.errors import FormatError
+from bimgraph.errors import BimgraphError, FormatError
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -28,12 +28,13 @@ def describe(err: ValidationError) -> str:
     return f"{_field(first['loc'])}: {message}{more}"
 
 
-def parse_model(model: type[M], data, where: str) -> M:
-    """Validate `data` as `model`; on failure raise FormatError starting with `where`."""
+def parse_model(model: type[M], data, where: str, error: type[BimgraphError] = FormatError) -> M:
+    """Validate `data` as `model`; on failure raise `error` (a file's: FormatError; options':
+    ConfigError) starting with `where`."""
     try:
         return model.model_validate(data)
     except ValidationError as err:
-        raise FormatError(f"{where}: {describe(err)}") from None
+        raise error(f"{where}: {describe(err)}") from None
 
 
 def require_unit(values, what: str, tol: float = 1e-3):

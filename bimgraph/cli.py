@@ -6,6 +6,7 @@ Heavy imports (gtsam, open3d, ifcopenshell, rerun) happen inside each command so
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import sys
@@ -19,8 +20,51 @@ from typing import Optional
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import typer
+from typer.core import TyperGroup
+
+try:  # typer >= 0.26 carries its own copy of click
+    from typer._click.exceptions import UsageError
+except ImportError:
+    from click.exceptions import UsageError
+
+
+def _error(message: str, exit_code: int) -> int:
+    """Print the one line of an error; returns its exit code."""
+    typer.secho(f"error: {message}", err=True, fg=typer.colors.RED)
+    return exit_code
+
+
+@contextlib.contextmanager
+def _one_line_usage_errors():
+    """A command line the parser refuses (unknown option or command, missing argument, a value
+    of the wrong type) as one line on stderr, exit code 2, instead of typer's boxed panel.
+    `bimgraph` alone still prints the help (click raises that as a usage error too)."""
+    try:
+        yield
+    except UsageError as err:
+        if type(err).__name__ == "NoArgsIsHelpError":  # (by name: click before 8.2 has no such class)
+            raise
+        command = err.ctx.command_path if err.ctx is not None else "bimgraph"
+        message = " ".join(err.format_message().split()).rstrip(".")
+        text = f"{command}: {message[:1].lower()}{message[1:]} (see {command} --help)"
+        raise typer.Exit(_error(text, err.exit_code)) from None
+
+
+class _Commands(TyperGroup):
+    """The top-level group; its own options and every subcommand's are parsed under
+    `_one_line_usage_errors`."""
+
+    def make_context(self, *args, **kwargs):
+        with _one_line_usage_errors():
+            return super().make_context(*args, **kwargs)
+
+    def invoke(self, ctx):
+        with _one_line_usage_errors():
+            return super().invoke(ctx)
+
 
 app = typer.Typer(
+    cls=_Commands,
     name="bimgraph",
     help="BIM-aware SLAM backend: corrects a SLAM trajectory against a building's IFC model "
     "and reports how each observed wall deviates from plan.\n\n"
@@ -47,8 +91,7 @@ def friendly_errors(func):
         try:
             return func(*args, **kwargs)
         except BimgraphError as err:
-            typer.secho(f"error: {err}", err=True, fg=typer.colors.RED)
-            raise typer.Exit(err.exit_code) from None
+            raise typer.Exit(_error(str(err), err.exit_code)) from None
         except KeyboardInterrupt:
             typer.secho("interrupted", err=True)
             raise typer.Exit(130) from None
@@ -202,6 +245,10 @@ def run(
     from bimgraph.config import load_config
 
     cfg = load_config(config_file)
+    if spawn:  # (before the inputs are read and the run made, not after)
+        from bimgraph.viewer.rerun_viewer import check_viewer_can_open
+
+        check_viewer_can_open()
     out = console()
     seeds = [parse_seed(s) for s in seed]
     inputs = load_inputs(sequence, bim_model, cfg)

@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from cli_errors import assert_one_line_error
+
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 
 from bimgraph.backend.synthetic import make_scene  # noqa: E402
@@ -150,3 +152,39 @@ def test_plot_run_draws_the_run(online_run, seq_dir, tmp_path):
     # the corrected trajectory's blue is drawn
     blue = np.array(Config().viewer.colour_corrected[:3][::-1])  # BGR
     assert (np.abs(image.astype(int) - blue).sum(axis=2) < 30).sum() > 100
+
+
+@pytest.fixture
+def no_viewer(monkeypatch):
+    """Spawning the Rerun viewer is recorded, never done (a test must not open a window, nor
+    wait for one that cannot open)."""
+    import sys
+
+    import rerun
+
+    spawned = []
+    monkeypatch.setattr(rerun.RecordingStream, "spawn", lambda self, **kwargs: spawned.append(kwargs))
+    monkeypatch.setattr(sys, "platform", "linux")
+    for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
+        monkeypatch.delenv(name, raising=False)
+    return spawned
+
+
+def test_without_a_display_the_viewer_is_refused_in_one_line(online_run, seq_dir, tmp_path, no_viewer):
+    """It waited forever for a viewer that exits at once without a display."""
+    root, _ = seq_dir
+    result = CliRunner().invoke(app, ["view", str(online_run), "--sequence", str(root)])
+    assert_one_line_error(result, 4, "no display", "--rrd FILE")
+    # run --spawn refuses before it reads anything or writes its outputs
+    result = CliRunner().invoke(app, ["run", str(root), "-o", str(tmp_path / "out"), "--spawn"])
+    assert_one_line_error(result, 4, "no display", "--rrd FILE")
+    assert not (tmp_path / "out").exists() and no_viewer == []
+
+
+def test_without_the_viewer_executable_spawning_is_one_line(online_run, seq_dir, monkeypatch, no_viewer):
+    root, _ = seq_dir
+    monkeypatch.setenv("DISPLAY", ":0")
+    monkeypatch.setenv("PATH", "")
+    result = CliRunner().invoke(app, ["view", str(online_run), "--sequence", str(root)])
+    assert_one_line_error(result, 4, "no Rerun viewer (`rerun`) on PATH")
+    assert no_viewer == []

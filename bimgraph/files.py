@@ -7,19 +7,43 @@ import math
 import os
 from pathlib import Path
 
+import yaml
+
 from bimgraph.errors import FormatError, InputError
 
 
-def read_json(path: Path):
+def read_text(path: Path) -> str:
+    """A text file's content. Missing or unreadable: InputError; not UTF-8 text (a binary file
+    given by mistake): FormatError. Never a traceback."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     try:
-        return json.loads(path.read_text())
+        return path.read_text()
     except UnicodeDecodeError:
         raise FormatError(f"{path}: not a text file") from None
+    except OSError as err:
+        raise InputError(f"{path}: cannot read ({err.strerror or err})") from None
+
+
+def read_json(path: Path):
+    try:
+        return json.loads(read_text(path))
     except json.JSONDecodeError as err:
         raise FormatError(f"{path}: line {err.lineno}: invalid JSON ({err.msg})") from None
+
+
+def read_yaml(path: Path):
+    """A YAML file's data (None if it is empty); a syntax error is a FormatError in one line
+    naming the line (PyYAML's own message spans five, with a drawing of the place)."""
+    try:
+        return yaml.safe_load(read_text(path))
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f"line {mark.line + 1}: " if mark is not None else ""
+        # (a MarkedYAMLError has a `problem`; a ReaderError, for control characters, a `reason`)
+        problem = getattr(err, "problem", None) or getattr(err, "reason", None) or "not YAML"
+        raise FormatError(f"{path}: {where}invalid YAML ({problem})") from None
 
 
 def ensure_folder(path: Path, target: Path | None = None) -> Path:

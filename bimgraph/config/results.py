@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from bimgraph.config.section import Section
 
@@ -33,6 +33,10 @@ class DeviationConfig(Section):
     min_expected_keyframes: int = Field(5, ge=1, description="a never-observed face in view in at least this many keyframes is possibly not built")
     bcf_author: str = Field("bimgraph", description="author of the BCF topics")
     bcf_view_distance_m: float = Field(3.0, gt=0, description="the BCF viewpoint looks at the face's centre from this far along its normal")
+
+    @model_validator(mode="after")
+    def _ranges(self):
+        return self.ordered(("visibility_min_range_m", "visibility_max_range_m"))
 
 
 class BaselineConfig(Section):

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from bimgraph.errors import FormatError, InputError
-from bimgraph.files import read_json, write_atomic, write_json
+from bimgraph.files import read_json, read_text, write_atomic, write_json
 from bimgraph.geometry import pose_from_tum, pose_to_tum
 from bimgraph.sequence.tum import read_tum, write_tum
 
@@ -73,10 +73,8 @@ def write_groundtruth(root: Path, gt: GroundTruth) -> None:
 
 
 def _read_jsonl(path: Path) -> list[dict]:
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
     records = []
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+    for lineno, line in enumerate(read_text(path).splitlines(), start=1):
         if not line.strip():
             continue
         try:

@@ -12,10 +12,9 @@ import os
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from bimgraph.errors import FormatError, InputError
-from bimgraph.files import read_json, write_atomic
+from bimgraph.files import read_json, read_yaml, write_atomic
 from bimgraph.geometry import pose_to_tum
 from bimgraph.sequence.format import Camera, Keyframe, Sequence, SequenceMeta
 from bimgraph.sequence.tum import data_lines, read_tum
@@ -81,15 +80,7 @@ def write_image_list(path: Path, stamps, names, kind: str) -> None:
 def load_camera(path: Path) -> Camera:
     """Intrinsics from a YAML or JSON file with width, height, fx, fy, cx, cy (depth_scale optional)."""
     path = Path(path)
-    if path.suffix.lower() == ".json":
-        data = read_json(path)
-    else:
-        if not path.is_file():
-            raise InputError(f"{path}: no such file")
-        try:
-            data = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as err:
-            raise FormatError(f"{path}: invalid YAML ({err})") from None
+    data = read_json(path) if path.suffix.lower() == ".json" else read_yaml(path)
     return parse_model(Camera, data, str(path))
 
 

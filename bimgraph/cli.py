@@ -321,7 +321,9 @@ def evaluate(
 
     cfg = load_config(config_file)
     evaluation = Evaluation(gt, cfg)
+    # every run's files read and validated before any metrics.json is written
     estimates = {str(d): load_estimate(d) for d in outdirs}
+    timings = {str(d): run_timings(d) for d in outdirs}
     rows = []
     if baselines:
         associations = next(iter(estimates.values())).associations
@@ -331,7 +333,7 @@ def evaluate(
     for out_dir, estimate in estimates.items():
         metrics = evaluation.metrics(estimate)
         write_metrics(out_dir, metrics)
-        rows.append({**summary_row(Path(out_dir).name, metrics), **run_timings(out_dir)})
+        rows.append({**summary_row(Path(out_dir).name, metrics), **timings[out_dir]})
     rows.append(summary_row("truth", evaluation.metrics(evaluation.truth())))
     if baselines:
         manual = rows[0]

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from typing import TypeVar
+from typing import Annotated, TypeVar
 
 import numpy as np
 
-from pydantic import BaseModel, ValidationError
+from pydantic import AfterValidator, BaseModel, ValidationError
 
 from bimgraph.errors import BimgraphError, FormatError
 
@@ -43,3 +43,12 @@ def require_unit(values, what: str, tol: float = 1e-3):
     if abs(norm - 1.0) > tol:
         raise ValueError(f"{what} has norm {norm:.4f}, must be unit")
     return values
+
+
+def _unit_quaternion(pose):
+    require_unit(pose[3:], "quaternion")
+    return pose
+
+
+# A pose `[tx, ty, tz, qx, qy, qz, qw]` (TUM order) as files hold it: 7 numbers, unit quaternion.
+Pose7 = Annotated[tuple[float, float, float, float, float, float, float], AfterValidator(_unit_quaternion)]

@@ -6,6 +6,7 @@ import pytest
 from typer.testing import CliRunner
 
 from cli_errors import assert_one_line_error
+from synthetic_sequence import write_sequence
 from test_planes_tum import make_tum_folder
 
 from bimgraph.cli import app
@@ -76,20 +77,9 @@ def test_planes_errors(tmp_path):
     assert result.exit_code == 2 and "no intrinsics" in result.output
 
 
-def planes_only_sequence(root):
-    """A sequence of plane detections (no depth images), as `bimgraph simulate --sensor planes` writes."""
-    from bimgraph.backend.synthetic import make_scene
-    from bimgraph.sequence.format import Camera, Sequence, SequenceMeta, save_sequence
-
-    scene = make_scene(n_keyframes=8, rooms=(1, 1), seed=3)
-    meta = SequenceMeta(name="planes only", sensor="planes",
-                        camera=Camera(width=640, height=480, fx=525.0, fy=525.0, cx=319.5, cy=239.5))
-    save_sequence(Sequence(root=root, meta=meta, keyframes=scene.keyframes))
-    return root
-
-
 def test_a_sequence_without_depth_images_is_refused_and_kept(tmp_path):
-    root = planes_only_sequence(tmp_path)
+    root = tmp_path
+    write_sequence(root, 8, rooms=(1, 1))  # plane detections only, as `bimgraph simulate --sensor planes` writes
     before = {name: (root / name).read_bytes() for name in ("keyframes.jsonl", "sequence.json")}
     assert b'"planes": [{' in before["keyframes.jsonl"]
     result = runner.invoke(app, ["planes", str(root)])

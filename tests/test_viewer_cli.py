@@ -11,17 +11,14 @@ import pytest
 from typer.testing import CliRunner
 
 from cli_errors import assert_one_line_error
+from synthetic_sequence import write_sequence
 
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 
-from bimgraph.backend.synthetic import make_scene  # noqa: E402
-from bimgraph.bim.planemap import save_plane_map  # noqa: E402
 from bimgraph.cli import app  # noqa: E402
 from bimgraph.config import ViewerConfig  # noqa: E402
 from bimgraph.deviations.report import JSON_FILE, DeviationsFile, FaceRecord  # noqa: E402
 from bimgraph.files import write_json  # noqa: E402
-from bimgraph.sequence.format import Camera, InitialAlignment, Sequence, SequenceMeta, save_sequence  # noqa: E402
-from bimgraph.sequence.groundtruth import GroundTruth, pose7, write_groundtruth  # noqa: E402
 from bimgraph.viewer import blueprint as bp  # noqa: E402
 from bimgraph.viewer.rerun_viewer import face_entity  # noqa: E402
 from bimgraph.viewer.rrd import row_counts, verify  # noqa: E402
@@ -31,18 +28,8 @@ N_KEYFRAMES = 60
 
 @pytest.fixture(scope="module")
 def seq_dir(tmp_path_factory):
-    scene = make_scene(n_keyframes=N_KEYFRAMES, rooms=(1, 2), seed=5)
     root = tmp_path_factory.mktemp("viewer_cli") / "seq"
-    root.mkdir()
-    save_plane_map(scene.plane_map, root / "planes.json")
-    meta = SequenceMeta(name="synthetic", model="planes.json", sensor="planes",
-                        camera=Camera(width=640, height=480, fx=525.0, fy=525.0, cx=319.5, cy=239.5),
-                        initial_alignment=InitialAlignment(T_B_S=tuple(pose7(scene.initial.T_B_S))))
-    save_sequence(Sequence(root=root, meta=meta, keyframes=scene.keyframes))
-    observations = [[{"face_id": scene.truth.get((kf.index, i))} for i in range(len(kf.planes))] for kf in scene.keyframes]
-    write_groundtruth(root, GroundTruth(np.array([kf.stamp for kf in scene.keyframes]), np.array(scene.T_B_C),
-                                        scene.T_B_S, {}, observations, {}, [{"index": k, "faces": {}} for k in range(N_KEYFRAMES)]))
-    return root, scene
+    return root, write_sequence(root, N_KEYFRAMES)
 
 
 def scalars(path, entity):

@@ -18,11 +18,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict
 
 from bimgraph.errors import FormatError, InputError
 from bimgraph.files import read_json, read_text, write_atomic, write_json
 from bimgraph.geometry import pose_from_tum, pose_to_tum
 from bimgraph.sequence.tum import read_tum, write_tum
+from bimgraph.validation import Pose7, parse_model
 
 FOLDER = "groundtruth"
 TRAJECTORY_FILE = "T_B_C.tum"
@@ -31,6 +33,13 @@ OBSERVATIONS_FILE = "observations.jsonl"
 AS_BUILT_FILE = "as_built.json"
 VISIBLE_FILE = "visible.jsonl"
 LABELS_FOLDER = "labels"
+
+
+class _Extrinsic(BaseModel):
+    """What is read of T_B_S.json; the rest (the initial alignment, the drift) is kept as read."""
+
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+    T_B_S: Pose7
 
 
 @dataclass
@@ -78,9 +87,12 @@ def _read_jsonl(path: Path) -> list[dict]:
         if not line.strip():
             continue
         try:
-            records.append(json.loads(line))
+            record = json.loads(line)
         except json.JSONDecodeError as err:
             raise FormatError(f"{path}: line {lineno}: invalid JSON ({err.msg})") from None
+        if not isinstance(record, dict):
+            raise FormatError(f"{path}: line {lineno}: expected a JSON object")
+        records.append(record)
     return records
 
 
@@ -91,10 +103,8 @@ def load_groundtruth(root: Path) -> GroundTruth:
         raise InputError(f"{root}: no {FOLDER}/ folder (not a simulated sequence)")
     stamps, T_B_C = read_tum(folder / TRAJECTORY_FILE)
     extrinsic = read_json(folder / EXTRINSIC_FILE)
-    try:
-        T_B_S = pose_from_tum(extrinsic.pop("T_B_S"))
-    except (KeyError, ValueError, TypeError, AttributeError):
-        raise FormatError(f"{folder / EXTRINSIC_FILE}: T_B_S must be 7 numbers (tx ty tz qx qy qz qw)") from None
+    T_B_S = pose_from_tum(parse_model(_Extrinsic, extrinsic, str(folder / EXTRINSIC_FILE)).T_B_S)
+    del extrinsic["T_B_S"]
     observations = [r.get("planes", []) for r in _read_jsonl(folder / OBSERVATIONS_FILE)]
     visible = _read_jsonl(folder / VISIBLE_FILE)
     for name, records in [(OBSERVATIONS_FILE, observations), (VISIBLE_FILE, visible)]:

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
+import shutil
 from pathlib import Path
 
 import yaml
@@ -59,6 +61,23 @@ def ensure_folder(path: Path, target: Path | None = None) -> Path:
     except OSError as err:
         raise InputError(f"{target}: cannot make the folder ({err.strerror or err})") from None
     return path
+
+
+@contextlib.contextmanager
+def new_folder(path: Path):
+    """Make the output folder `path` (as `ensure_folder`) for the block; if the block fails,
+    remove what this made, the folder with whatever the block wrote into it and any parents
+    made for it, so that a failed command leaves no half-made output behind. A folder that
+    existed before is left (the block must not have spoilt it before it failed)."""
+    path = Path(path)
+    made = next((p for p in reversed((path, *path.parents)) if not p.exists()), None)
+    ensure_folder(path)
+    try:
+        yield path
+    except BaseException:  # (Ctrl-C too)
+        if made is not None:
+            shutil.rmtree(made, ignore_errors=True)
+        raise
 
 
 def write_atomic(path: Path, text: str) -> None:

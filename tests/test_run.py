@@ -174,14 +174,16 @@ def test_online_run_writes_the_covariance_the_api_gives_at_that_keyframe(world, 
     np.testing.assert_allclose(written["covariance"], last.cov_T_B_S, rtol=1e-9, atol=1e-15)
 
 
-def test_malformed_plane_map_is_one_line(world, tmp_path):
+@pytest.mark.parametrize("field, value, message", [("normal", [0.0, 2.0, 0.0], "faces[2].normal: normal has norm 2.0000"),
+                                                  ("offset", float("nan"), "faces[2].offset: Input should be a finite number")])
+def test_malformed_plane_map_is_one_line(world, tmp_path, field, value, message):
     _, root = world
     bad = json.loads((root / "planes.json").read_text())
-    bad["faces"][2]["normal"] = [0.0, 2.0, 0.0]
+    bad["faces"][2][field] = value
     (tmp_path / "bad.json").write_text(json.dumps(bad))
     result = run(root, "-o", tmp_path / "out", "--bim", tmp_path / "bad.json")
-    assert result.exit_code == 3
-    assert "faces[2]" in result.output and "normal" in result.output and result.output.strip().count("\n") == 0
+    assert_one_line_error(result, 3, f"bad.json: {message}")
+    assert not (tmp_path / "out").exists()
 
 
 def test_seed_alignment_and_bad_seed(world, tmp_path):

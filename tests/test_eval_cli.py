@@ -78,7 +78,7 @@ def test_a_malformed_run_output_is_one_line_exit_3(finished_run, tmp_path, name,
     assert not (run / "metrics.json").exists()
 
 
-def test_a_malformed_ground_truth_extrinsic_is_one_line_exit_3(finished_run, tmp_path):
+def test_malformed_ground_truth_is_one_line_exit_3(finished_run, tmp_path):
     """8 numbers were taken as a pose (the first 7), NaN went into the metrics."""
     seq, out = finished_run
     copy = tmp_path / "seq"
@@ -89,3 +89,9 @@ def test_a_malformed_ground_truth_extrinsic_is_one_line_exit_3(finished_run, tmp
         path.write_text(json.dumps({"T_B_S": T_B_S}))
         result = CliRunner().invoke(app, ["eval", str(out), "--gt", str(copy), "--no-baselines"])
         assert_one_line_error(result, 3, f"{path}: {message}")
+    # a ground-truth line not of the schema was a TypeError or an AttributeError
+    shutil.copy(seq / "groundtruth" / "T_B_S.json", path)
+    lines = (copy / "groundtruth" / "observations.jsonl").read_text().splitlines()
+    (copy / "groundtruth" / "observations.jsonl").write_text("\n".join([lines[0], '{"index": 1, "planes": 5}', *lines[2:]]) + "\n")
+    result = CliRunner().invoke(app, ["eval", str(out), "--gt", str(copy), "--no-baselines"])
+    assert_one_line_error(result, 3, "observations.jsonl: line 2: planes: Input should be a valid list")

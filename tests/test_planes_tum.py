@@ -54,6 +54,10 @@ def test_image_list(tmp_path):
     (tmp_path / "bad.txt").write_text("# c\n1.0 a.png\nx b.png\n")
     with pytest.raises(FormatError, match="line 3: stamp 'x'"):
         read_image_list(tmp_path / "bad.txt")
+    # float() takes "inf": it went into a keyframe, a ValidationError traceback
+    (tmp_path / "bad.txt").write_text("1.0 a.png\ninf b.png\n")
+    with pytest.raises(FormatError, match="line 2: stamp 'inf' is not a finite number"):
+        read_image_list(tmp_path / "bad.txt")
 
 
 def test_nearest_association():

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field
 
 from bimgraph.errors import FormatError, InputError
 from bimgraph.files import read_json, read_text, write_atomic, write_json
@@ -40,6 +40,25 @@ class _Extrinsic(BaseModel):
 
     model_config = ConfigDict(extra="allow", allow_inf_nan=False)
     T_B_S: Pose7
+
+
+class _PlaneTruth(BaseModel):
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+    face_id: str | None = None
+
+
+class _Observations(BaseModel):
+    """A line of observations.jsonl: the truth of each plane of keyframe `index`, in order."""
+
+    model_config = ConfigDict(extra="forbid")
+    index: int = Field(ge=0)
+    planes: list[_PlaneTruth]
+
+
+class _Visible(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    index: int = Field(ge=0)
+    faces: dict[str, int]
 
 
 @dataclass
@@ -81,7 +100,8 @@ def write_groundtruth(root: Path, gt: GroundTruth) -> None:
     write_atomic(folder / VISIBLE_FILE, _jsonl(gt.visible))
 
 
-def _read_jsonl(path: Path) -> list[dict]:
+def _read_jsonl(path: Path, model: type[BaseModel]) -> list[dict]:
+    """The records of a JSON Lines file as read, each validated as `model`."""
     records = []
     for lineno, line in enumerate(read_text(path).splitlines(), start=1):
         if not line.strip():
@@ -90,8 +110,7 @@ def _read_jsonl(path: Path) -> list[dict]:
             record = json.loads(line)
         except json.JSONDecodeError as err:
             raise FormatError(f"{path}: line {lineno}: invalid JSON ({err.msg})") from None
-        if not isinstance(record, dict):
-            raise FormatError(f"{path}: line {lineno}: expected a JSON object")
+        parse_model(model, record, f"{path}: line {lineno}")
         records.append(record)
     return records
 
@@ -105,8 +124,8 @@ def load_groundtruth(root: Path) -> GroundTruth:
     extrinsic = read_json(folder / EXTRINSIC_FILE)
     T_B_S = pose_from_tum(parse_model(_Extrinsic, extrinsic, str(folder / EXTRINSIC_FILE)).T_B_S)
     del extrinsic["T_B_S"]
-    observations = [r.get("planes", []) for r in _read_jsonl(folder / OBSERVATIONS_FILE)]
-    visible = _read_jsonl(folder / VISIBLE_FILE)
+    observations = [r["planes"] for r in _read_jsonl(folder / OBSERVATIONS_FILE, _Observations)]
+    visible = _read_jsonl(folder / VISIBLE_FILE, _Visible)
     for name, records in [(OBSERVATIONS_FILE, observations), (VISIBLE_FILE, visible)]:
         if len(records) != len(stamps):
             raise FormatError(f"{folder / name}: {len(records)} keyframes, {TRAJECTORY_FILE} has {len(stamps)}")

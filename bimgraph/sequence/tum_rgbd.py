@@ -8,6 +8,7 @@ relative to the folder. A depth pixel of 0 means no return.
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
@@ -63,9 +64,12 @@ def read_image_list(path: Path) -> tuple[np.ndarray, list[str]]:
         if len(fields) != 2:
             raise FormatError(f"{path}: line {lineno}: expected `stamp path`, got {len(fields)} fields")
         try:
-            stamps.append(float(fields[0]))
+            stamp = float(fields[0])
         except ValueError:
-            raise FormatError(f"{path}: line {lineno}: stamp {fields[0]!r} is not a number") from None
+            stamp = math.nan
+        if not math.isfinite(stamp):  # (float() takes "nan" and "inf")
+            raise FormatError(f"{path}: line {lineno}: stamp {fields[0]!r} is not a finite number")
+        stamps.append(stamp)
         names.append(fields[1])
     return np.array(stamps), names
 

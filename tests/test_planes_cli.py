@@ -78,13 +78,13 @@ def test_planes_errors(tmp_path):
 
 
 def test_a_sequence_without_depth_images_is_refused_and_kept(tmp_path):
-    root = tmp_path
-    write_sequence(root, 8, rooms=(1, 1))  # plane detections only, as `bimgraph simulate --sensor planes` writes
-    before = {name: (root / name).read_bytes() for name in ("keyframes.jsonl", "sequence.json")}
+    """It rewrote keyframes.jsonl with every detection removed."""
+    write_sequence(tmp_path, 8, rooms=(1, 1))  # plane detections only, as `bimgraph simulate --sensor planes` writes
+    before = {name: (tmp_path / name).read_bytes() for name in ("keyframes.jsonl", "sequence.json")}
     assert b'"planes": [{' in before["keyframes.jsonl"]
-    result = runner.invoke(app, ["planes", str(root)])
+    result = runner.invoke(app, ["planes", str(tmp_path)])
     assert_one_line_error(result, 2, "no keyframe has a depth image", "nothing written")
-    assert {name: (root / name).read_bytes() for name in before} == before
+    assert {name: (tmp_path / name).read_bytes() for name in before} == before
 
 
 def test_a_keyframe_without_a_depth_image_keeps_its_planes(tmp_path):
@@ -122,7 +122,7 @@ def test_a_failure_mid_extraction_leaves_the_keyframes_file_as_it_was(tmp_path, 
     result = runner.invoke(app, ["planes", str(tmp_path)])
     assert result.exit_code == 130 and len(calls) == 2
     assert (tmp_path / "keyframes.jsonl").read_bytes() == before
-    assert sorted(p.name for p in tmp_path.iterdir() if p.name.endswith(".tmp")) == []
+    assert not any(p.name.endswith(".tmp") for p in tmp_path.iterdir())
 
 
 @pytest.mark.parametrize("options, message", [

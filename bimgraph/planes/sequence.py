@@ -73,7 +73,8 @@ def extract_into(seq: Sequence, camera: Camera, cfg: Config,
     """Extract the planes of every keyframe that has a depth image and save the sequence; a
     simulated depth sequence also gets the ground truth of its new planes, so that it can be
     evaluated. A sequence without depth images is refused before anything is written (its
-    planes are all it has). The keyframes file is replaced atomically, after every frame."""
+    planes are all it has). The keyframes file is replaced once, atomically, after the last
+    frame: a failure or Ctrl-C half-way leaves it as it was."""
     from bimgraph.sim.labels import simulated_labeller
 
     if not any(kf.depth for kf in seq.keyframes):
@@ -117,7 +118,8 @@ def open_input(folder: Path, trajectory: Path | None = None, intrinsics: Path | 
     """What `bimgraph planes` extracts into, and the camera: a sequence folder, or a plain TUM
     RGB-D folder with a `trajectory` of any SLAM (keyframes within `max_dt` s of a pose). The
     camera comes from `intrinsics` (a file), `pinhole` (fx, fy, cx, cy; all or none) or the
-    sequence. Options are checked before any file is read."""
+    sequence. Which options go together, and `max_dt`, are checked before any file is read;
+    the pinhole values once the first depth image gives the image size."""
     folder = Path(folder)
     given = [v is not None for v in pinhole]
     if any(given) and not all(given):

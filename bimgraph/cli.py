@@ -6,6 +6,7 @@ Heavy imports (gtsam, open3d, ifcopenshell, rerun) happen inside each command so
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import sys
@@ -19,8 +20,51 @@ from typing import Optional
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import typer
+from typer.core import TyperGroup
+
+try:  # typer >= 0.26 carries its own copy of click
+    from typer._click.exceptions import UsageError
+except ImportError:
+    from click.exceptions import UsageError
+
+
+def _error(message: str, exit_code: int) -> int:
+    """Print the one line of an error; returns its exit code."""
+    typer.secho(f"error: {message}", err=True, fg=typer.colors.RED)
+    return exit_code
+
+
+@contextlib.contextmanager
+def _one_line_usage_errors():
+    """A command line the parser refuses (unknown option or command, missing argument, a value
+    of the wrong type) as one line on stderr, exit code 2, instead of typer's boxed panel.
+    `bimgraph` alone still prints the help (click raises that as a usage error too)."""
+    try:
+        yield
+    except UsageError as err:
+        if type(err).__name__ == "NoArgsIsHelpError":  # (by name: click before 8.2 has no such class)
+            raise
+        command = err.ctx.command_path if err.ctx is not None else "bimgraph"
+        message = " ".join(err.format_message().split()).rstrip(".")
+        text = f"{command}: {message[:1].lower()}{message[1:]} (see {command} --help)"
+        raise typer.Exit(_error(text, err.exit_code)) from None
+
+
+class _Commands(TyperGroup):
+    """The top-level group; its own options and every subcommand's are parsed under
+    `_one_line_usage_errors`."""
+
+    def make_context(self, *args, **kwargs):
+        with _one_line_usage_errors():
+            return super().make_context(*args, **kwargs)
+
+    def invoke(self, ctx):
+        with _one_line_usage_errors():
+            return super().invoke(ctx)
+
 
 app = typer.Typer(
+    cls=_Commands,
     name="bimgraph",
     help="BIM-aware SLAM backend: corrects a SLAM trajectory against a building's IFC model "
     "and reports how each observed wall deviates from plan.\n\n"
@@ -47,8 +91,7 @@ def friendly_errors(func):
         try:
             return func(*args, **kwargs)
         except BimgraphError as err:
-            typer.secho(f"error: {err}", err=True, fg=typer.colors.RED)
-            raise typer.Exit(err.exit_code) from None
+            raise typer.Exit(_error(str(err), err.exit_code)) from None
         except KeyboardInterrupt:
             typer.secho("interrupted", err=True)
             raise typer.Exit(130) from None
@@ -60,6 +103,15 @@ def console():
     from rich.console import Console
 
     return Console(stderr=True)
+
+
+def progress_bar(out, *columns):
+    """A transient progress bar on `out`, shown only on a terminal: elsewhere (a log file, a
+    pipe) rich still ends it with a newline, a blank line before whatever follows it, such as
+    an error that must be one line."""
+    from rich.progress import Progress
+
+    return Progress(*columns, console=out, transient=True, disable=not out.is_terminal)
 
 
 @app.command()
@@ -117,39 +169,20 @@ def planes(
     max_dt: float = typer.Option(0.02, "--max-dt", help="Largest stamp difference between a depth image and its trajectory pose (s)."),
     config_file: Optional[Path] = ConfigOption,
 ):
-    """Detect planes in every keyframe's depth image and write them into the keyframes file.
+    """Detect planes in every keyframe's depth image and write them into the keyframes file
+    (a keyframe without a depth image keeps its planes; a sequence without any is refused).
 
     Example (TUM fr1/desk, ORB-SLAM trajectory):
     bimgraph planes rgbd_dataset_freiburg1_desk -t CameraTrajectory.txt --fx 517.3 --fy 516.5 --cx 318.6 --cy 255.3
     """
-    from rich.progress import Progress
-
     from bimgraph.config import load_config
-    from bimgraph.errors import ConfigError
-    from bimgraph.planes.sequence import extract_into, resolve_camera
-    from bimgraph.sequence.format import META_FILE, load_sequence
-    from bimgraph.sequence.tum_rgbd import DEPTH_LIST, load_camera, load_tum_rgbd, read_image_list
+    from bimgraph.planes.sequence import extract_into, open_input
 
     cfg = load_config(config_file)
-    pinhole = (fx, fy, cx, cy)
-    if any(v is not None for v in pinhole) and any(v is None for v in pinhole):
-        raise ConfigError("give all four of --fx --fy --cx --cy")
-    pinhole = pinhole if fx is not None else None
-    camera_file = load_camera(intrinsics) if intrinsics is not None else None
-    if trajectory is not None:
-        stamps, names = read_image_list(seqdir / DEPTH_LIST)
-        first = seqdir / names[0] if names else None
-        camera = resolve_camera(None, camera_file, pinhole, first)
-        seq = load_tum_rgbd(seqdir, trajectory, camera, max_dt=max_dt)
-    elif (seqdir / META_FILE).is_file():
-        seq = load_sequence(seqdir)
-        first = next((seqdir / kf.depth for kf in seq.keyframes if kf.depth), None)
-        camera = resolve_camera(seq, camera_file, pinhole, first)
-    else:
-        raise ConfigError(f"{seqdir}: no {META_FILE}; for a TUM RGB-D folder give --trajectory")
+    seq, camera = open_input(seqdir, trajectory, intrinsics, (fx, fy, cx, cy), max_dt)
     out = console()
-    with Progress(console=out, transient=True) as progress:
-        task = progress.add_task("extracting planes", total=len(seq.keyframes))
+    with progress_bar(out) as progress:
+        task = progress.add_task("extracting planes", total=sum(kf.depth is not None for kf in seq.keyframes))
         report = extract_into(seq, camera, cfg, on_frame=lambda kf, extraction: progress.advance(task))
     for line in report.problems:
         out.print(f"[yellow]skipped[/yellow] {line}", highlight=False, soft_wrap=True)
@@ -171,8 +204,6 @@ def simulate(
 
     Example: bimgraph simulate -o seq --scenario site --keyframes 800 --seed 3
     """
-    from rich.progress import Progress
-
     from bimgraph.config import load_config
     from bimgraph.sim.simulate import SimOptions, simulate as run_simulation
 
@@ -180,7 +211,7 @@ def simulate(
     opts = SimOptions(output=output, scenario=scenario, ifc=ifc, sensor=sensor, keyframes=keyframes, seed=seed)
     opts.check()
     out = console()
-    with Progress(console=out, transient=True) as bar:
+    with progress_bar(out) as bar:
         task = bar.add_task(f"simulating ({sensor})", total=keyframes)
         summary = run_simulation(opts, cfg, log=out.print, progress=lambda done, total: bar.update(task, completed=done))
     drift = summary["drift"]
@@ -208,12 +239,16 @@ def run(
 
     Example: bimgraph run seq -o out --rrd out/run.rrd; rerun out/run.rrd
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
 
     from bimgraph.backend.pipeline import load_inputs, parse_seed, run as run_backend
     from bimgraph.config import load_config
 
     cfg = load_config(config_file)
+    if spawn:  # (before the inputs are read and the run made, not after)
+        from bimgraph.viewer.rerun_viewer import check_viewer_can_open
+
+        check_viewer_can_open()
     out = console()
     seeds = [parse_seed(s) for s in seed]
     inputs = load_inputs(sequence, bim_model, cfg)
@@ -223,8 +258,7 @@ def run(
 
         viewer, listener = follow_run(inputs, cfg, rrd=rrd, spawn=spawn)
     try:
-        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                      console=out, transient=True) as bar:
+        with progress_bar(out, TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()) as bar:
             task = bar.add_task(f"bimgraph run ({mode})", total=None)
             run_backend(sequence, output, mode=mode, bim=bim_model, config=cfg, seeds=seeds, oracle=oracle,
                         listener=listener, progress=lambda done, total: bar.update(task, completed=done), inputs=inputs)
@@ -287,7 +321,9 @@ def evaluate(
 
     cfg = load_config(config_file)
     evaluation = Evaluation(gt, cfg)
+    # every run's files read and validated before any metrics.json is written
     estimates = {str(d): load_estimate(d) for d in outdirs}
+    timings = {str(d): run_timings(d) for d in outdirs}
     rows = []
     if baselines:
         associations = next(iter(estimates.values())).associations
@@ -297,7 +333,7 @@ def evaluate(
     for out_dir, estimate in estimates.items():
         metrics = evaluation.metrics(estimate)
         write_metrics(out_dir, metrics)
-        rows.append({**summary_row(Path(out_dir).name, metrics), **run_timings(out_dir)})
+        rows.append({**summary_row(Path(out_dir).name, metrics), **timings[out_dir]})
     rows.append(summary_row("truth", evaluation.metrics(evaluation.truth())))
     if baselines:
         manual = rows[0]

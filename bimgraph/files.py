@@ -2,24 +2,50 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
+import shutil
 from pathlib import Path
+
+import yaml
 
 from bimgraph.errors import FormatError, InputError
 
 
-def read_json(path: Path):
+def read_text(path: Path) -> str:
+    """A text file's content. Missing or unreadable: InputError; not UTF-8 text (a binary file
+    given by mistake): FormatError. Never a traceback."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     try:
-        return json.loads(path.read_text())
+        return path.read_text()
     except UnicodeDecodeError:
         raise FormatError(f"{path}: not a text file") from None
+    except OSError as err:
+        raise InputError(f"{path}: cannot read ({err.strerror or err})") from None
+
+
+def read_json(path: Path):
+    try:
+        return json.loads(read_text(path))
     except json.JSONDecodeError as err:
         raise FormatError(f"{path}: line {err.lineno}: invalid JSON ({err.msg})") from None
+
+
+def read_yaml(path: Path):
+    """A YAML file's data (None if it is empty); a syntax error is a FormatError in one line
+    naming the line (PyYAML's own message spans five, with a drawing of the place)."""
+    try:
+        return yaml.safe_load(read_text(path))
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f"line {mark.line + 1}: " if mark is not None else ""
+        # (a MarkedYAMLError has a `problem`; a ReaderError, for control characters, a `reason`)
+        problem = getattr(err, "problem", None) or getattr(err, "reason", None) or "not YAML"
+        raise FormatError(f"{path}: {where}invalid YAML ({problem})") from None
 
 
 def ensure_folder(path: Path, target: Path | None = None) -> Path:
@@ -35,6 +61,23 @@ def ensure_folder(path: Path, target: Path | None = None) -> Path:
     except OSError as err:
         raise InputError(f"{target}: cannot make the folder ({err.strerror or err})") from None
     return path
+
+
+@contextlib.contextmanager
+def new_folder(path: Path):
+    """Make the output folder `path` (as `ensure_folder`) for the block; if the block fails,
+    remove what this made, the folder with whatever the block wrote into it and any parents
+    made for it, so that a failed command leaves no half-made output behind. A folder that
+    existed before is left (the block must not have spoilt it before it failed)."""
+    path = Path(path)
+    made = next((p for p in reversed((path, *path.parents)) if not p.exists()), None)
+    ensure_folder(path)
+    try:
+        yield path
+    except BaseException:  # (Ctrl-C too)
+        if made is not None:
+            shutil.rmtree(made, ignore_errors=True)
+        raise
 
 
 def write_atomic(path: Path, text: str) -> None:

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-from typing import TypeVar
+from typing import Annotated, TypeVar
 
 import numpy as np
 
-from pydantic import BaseModel, ValidationError
+from pydantic import AfterValidator, BaseModel, ValidationError
 
-from bimgraph.errors import FormatError
+from bimgraph.errors import BimgraphError, FormatError
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -28,12 +28,13 @@ def describe(err: ValidationError) -> str:
     return f"{_field(first['loc'])}: {message}{more}"
 
 
-def parse_model(model: type[M], data, where: str) -> M:
-    """Validate `data` as `model`; on failure raise FormatError starting with `where`."""
+def parse_model(model: type[M], data, where: str, error: type[BimgraphError] = FormatError) -> M:
+    """Validate `data` as `model`; on failure raise `error` (a file's: FormatError; options':
+    ConfigError) starting with `where`."""
     try:
         return model.model_validate(data)
     except ValidationError as err:
-        raise FormatError(f"{where}: {describe(err)}") from None
+        raise error(f"{where}: {describe(err)}") from None
 
 
 def require_unit(values, what: str, tol: float = 1e-3):
@@ -42,3 +43,12 @@ def require_unit(values, what: str, tol: float = 1e-3):
     if abs(norm - 1.0) > tol:
         raise ValueError(f"{what} has norm {norm:.4f}, must be unit")
     return values
+
+
+def _unit_quaternion(pose):
+    require_unit(pose[3:], "quaternion")
+    return pose
+
+
+# A pose `[tx, ty, tz, qx, qy, qz, qw]` (TUM order) as files hold it: 7 numbers, unit quaternion.
+Pose7 = Annotated[tuple[float, float, float, float, float, float, float], AfterValidator(_unit_quaternion)]

@@ -19,11 +19,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bimgraph.backend.pipeline import initial_alignment, load_model, model_path  # noqa: E402
-from bimgraph.backend.results import TRAJECTORY_BIM  # noqa: E402
+from bimgraph.backend.results import ASSOCIATIONS, TRAJECTORY_BIM, load_associations  # noqa: E402
 from bimgraph.config import Config, load_config  # noqa: E402
 from bimgraph.sequence.format import load_sequence  # noqa: E402
 from bimgraph.sequence.tum import read_tum  # noqa: E402
-from bimgraph.viewer.session import face_by_observation, ground_truth  # noqa: E402
+from bimgraph.viewer.session import ground_truth  # noqa: E402
 
 
 def _rgb(colour) -> tuple[float, float, float]:
@@ -43,7 +43,7 @@ def plot_run(out_dir: Path, seq_dir: Path, png: Path, cfg: Config, bim: Path | N
     _, T_B_C = read_tum(Path(out_dir) / TRAJECTORY_BIM)
     T_B_S0 = initial_alignment(seq.meta, cfg).T_B_S
     raw = np.array([(T_B_S0 @ kf.pose)[:3, 3] for kf in seq.keyframes[:len(T_B_C)]])
-    associated = set(face_by_observation(out_dir).values())
+    associated = {a.face for a in load_associations(Path(out_dir) / ASSOCIATIONS).associations}
     deviations = Path(out_dir) / JSON_FILE
     deviating = {f.face_id for f in load_deviations(deviations).faces if f.status == "deviating"} if deviations.is_file() else set()
     truth, _ = ground_truth(seq.root)

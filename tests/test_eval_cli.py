@@ -2,10 +2,14 @@
 the ground-truth floor in the table, one-line errors."""
 
 import json
+import shutil
 
 import numpy as np
-
+import pytest
 from typer.testing import CliRunner
+
+from cli_errors import assert_one_line_error
+from synthetic_sequence import write_sequence
 
 from bimgraph.cli import app
 from bimgraph.geometry import pose_from_tum
@@ -38,3 +42,56 @@ def test_eval_of_a_missing_run_is_one_line(tmp_path):
     result = CliRunner().invoke(app, ["eval", str(tmp_path / "nope"), "--gt", str(tmp_path)])
     assert result.exit_code == 2
     assert "Traceback" not in result.output and len(result.output.strip().splitlines()) == 1
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory):
+    root = tmp_path_factory.mktemp("eval")
+    write_sequence(root / "seq", 30, rooms=(1, 1))
+    assert CliRunner().invoke(app, ["run", str(root / "seq"), "-o", str(root / "out")]).exit_code == 0
+    return root / "seq", root / "out"
+
+
+def _set(key, value):
+    return lambda data: data.__setitem__(key, value)
+
+
+@pytest.mark.parametrize("name, change, message", [
+    ("extrinsic.json", lambda d: d["T_B_S"].append(0.0), "T_B_S: Tuple should have at most 7 items after validation, not 8"),
+    ("extrinsic.json", lambda d: d["T_B_S"].__setitem__(0, float("nan")), "T_B_S[0]: Input should be a finite number"),
+    ("extrinsic.json", _set("T_B_S", [0, 0, 0, 0, 0, 0, 0]), "T_B_S: quaternion has norm 0.0000, must be unit"),
+    ("associations.json", _set("associations", 5), "associations: Input should be a valid list"),
+    ("associations.json", lambda d: d["associations"][0].__setitem__("observations", [[1]]),
+     "associations[0].observations[0][1]: Field required"),
+    ("summary.json", _set("timings_s", 5), "timings_s: Input should be a valid dictionary"),
+])
+def test_a_malformed_run_output_is_one_line_exit_3(finished_run, tmp_path, name, change, message):
+    """extrinsic.json with 8 numbers or NaN in T_B_S was accepted; {"associations": 5} a TypeError."""
+    seq, out = finished_run
+    run = tmp_path / "run"
+    shutil.copytree(out, run)
+    data = json.loads((run / name).read_text())
+    change(data)
+    (run / name).write_text(json.dumps(data))
+    result = CliRunner().invoke(app, ["eval", str(run), "--gt", str(seq), "--no-baselines"])
+    assert_one_line_error(result, 3, f"{run / name}: {message}")
+    assert not (run / "metrics.json").exists()
+
+
+def test_malformed_ground_truth_is_one_line_exit_3(finished_run, tmp_path):
+    """8 numbers were taken as a pose (the first 7), NaN went into the metrics."""
+    seq, out = finished_run
+    copy = tmp_path / "seq"
+    shutil.copytree(seq, copy)
+    path = copy / "groundtruth" / "T_B_S.json"
+    for T_B_S, message in [([0, 0, 0, 0, 0, 0, 1, 5], "T_B_S: Tuple should have at most 7 items"),
+                           ([float("nan"), 0, 0, 0, 0, 0, 1], "T_B_S[0]: Input should be a finite number")]:
+        path.write_text(json.dumps({"T_B_S": T_B_S}))
+        result = CliRunner().invoke(app, ["eval", str(out), "--gt", str(copy), "--no-baselines"])
+        assert_one_line_error(result, 3, f"{path}: {message}")
+    # a ground-truth line not of the schema was a TypeError or an AttributeError
+    shutil.copy(seq / "groundtruth" / "T_B_S.json", path)
+    lines = (copy / "groundtruth" / "observations.jsonl").read_text().splitlines()
+    (copy / "groundtruth" / "observations.jsonl").write_text("\n".join([lines[0], '{"index": 1, "planes": 5}', *lines[2:]]) + "\n")
+    result = CliRunner().invoke(app, ["eval", str(out), "--gt", str(copy), "--no-baselines"])
+    assert_one_line_error(result, 3, "observations.jsonl: line 2: planes: Input should be a valid list")

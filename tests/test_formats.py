@@ -51,6 +51,7 @@ def test_polygon_with_hole():
         (lambda f: f.update(polygon=[[0, 5, 0], [4, 5, 0]]), "faces[0].polygon"),
         (lambda f: f.update(offset=4.0), "off the plane"),
         (lambda f: f.pop("wall_guid"), "faces[0].wall_guid"),
+        (lambda f: f.update(offset=float("nan")), "faces[0].offset: Input should be a finite number"),
     ],
 )
 def test_bad_map_names_the_field(tmp_path, change, message):
@@ -103,3 +104,12 @@ def test_bad_keyframe_names_line_and_field(tmp_path, bad, message):
     _write_sequence(tmp_path / "seq", [KF, bad])
     with pytest.raises(FormatError, match=message):
         list(iter_keyframes(tmp_path / "seq"))
+
+
+def test_initial_alignment_needs_a_unit_quaternion(tmp_path):
+    """A zero quaternion was accepted, and made every pose NaN."""
+    _write_sequence(tmp_path / "seq", [KF])
+    meta = {"format": "bimgraph.sequence", "version": 1, "initial_alignment": {"T_B_S": [0, 0, 0, 0, 0, 0, 0]}}
+    (tmp_path / "seq" / "sequence.json").write_text(json.dumps(meta))
+    with pytest.raises(FormatError, match=r"sequence.json: initial_alignment.T_B_S: quaternion has norm 0.0000, must be unit$"):
+        load_sequence(tmp_path / "seq")

@@ -2,8 +2,11 @@
 
 import cv2
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
+from cli_errors import assert_one_line_error
+from synthetic_sequence import write_sequence
 from test_planes_tum import make_tum_folder
 
 from bimgraph.cli import app
@@ -72,3 +75,63 @@ def test_planes_errors(tmp_path):
     make_tum_folder(tmp_path, count=1)
     result = runner.invoke(app, ["planes", str(tmp_path), "-t", str(tmp_path / "traj.txt")])
     assert result.exit_code == 2 and "no intrinsics" in result.output
+
+
+def test_a_sequence_without_depth_images_is_refused_and_kept(tmp_path):
+    """It rewrote keyframes.jsonl with every detection removed."""
+    write_sequence(tmp_path, 8, rooms=(1, 1))  # plane detections only, as `bimgraph simulate --sensor planes` writes
+    before = {name: (tmp_path / name).read_bytes() for name in ("keyframes.jsonl", "sequence.json")}
+    assert b'"planes": [{' in before["keyframes.jsonl"]
+    result = runner.invoke(app, ["planes", str(tmp_path)])
+    assert_one_line_error(result, 2, "no keyframe has a depth image", "nothing written")
+    assert {name: (tmp_path / name).read_bytes() for name in before} == before
+
+
+def test_a_keyframe_without_a_depth_image_keeps_its_planes(tmp_path):
+    from bimgraph.sequence.format import PlaneObservation, save_sequence
+
+    make_tum_folder(tmp_path, count=2)
+    assert runner.invoke(app, ["planes", str(tmp_path), "-t", str(tmp_path / "traj.txt"), "--fx", "525", "--fy", "525",
+                               "--cx", "319.5", "--cy", "239.5"]).exit_code == 0
+    seq = load_sequence(tmp_path)
+    plane = PlaneObservation(n=(0.0, 0.0, -1.0), d=2.0)
+    seq.keyframes[0] = seq.keyframes[0].model_copy(update={"depth": None, "planes": [plane]})
+    save_sequence(seq)
+    result = runner.invoke(app, ["planes", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    after = load_sequence(tmp_path)
+    assert after.keyframes[0].planes == [plane] and after.keyframes[1].planes
+
+
+def test_a_failure_mid_extraction_leaves_the_keyframes_file_as_it_was(tmp_path, monkeypatch):
+    from bimgraph.planes.extractor import PlaneExtractor
+
+    make_tum_folder(tmp_path, count=3)
+    assert runner.invoke(app, ["planes", str(tmp_path), "-t", str(tmp_path / "traj.txt"), "--fx", "525", "--fy", "525",
+                               "--cx", "319.5", "--cy", "239.5"]).exit_code == 0
+    before = (tmp_path / "keyframes.jsonl").read_bytes()
+    extract, calls = PlaneExtractor.extract, []
+
+    def failing(self, depth):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return extract(self, depth)
+
+    monkeypatch.setattr(PlaneExtractor, "extract", failing)
+    result = runner.invoke(app, ["planes", str(tmp_path)])
+    assert result.exit_code == 130 and len(calls) == 2
+    assert (tmp_path / "keyframes.jsonl").read_bytes() == before
+    assert not any(p.name.endswith(".tmp") for p in tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("options, message", [
+    (["--fx", "-500", "--fy", "500", "--cx", "320", "--cy", "240"], "fx: Input should be greater than 0"),
+    (["--fx", "nan", "--fy", "500", "--cx", "320", "--cy", "240"], "fx: Input should be a finite number"),
+    (["--fx", "500", "--fy", "500", "--cx", "320", "--cy", "240", "--max-dt", "-1"], "--max-dt must be at least 0"),
+])
+def test_bad_option_values_are_one_line_exit_4(tmp_path, options, message):
+    make_tum_folder(tmp_path, count=1)
+    result = runner.invoke(app, ["planes", str(tmp_path), "-t", str(tmp_path / "traj.txt"), *options])
+    assert_one_line_error(result, 4, message)
+    assert not (tmp_path / "keyframes.jsonl").exists()

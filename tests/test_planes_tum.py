@@ -54,6 +54,10 @@ def test_image_list(tmp_path):
     (tmp_path / "bad.txt").write_text("# c\n1.0 a.png\nx b.png\n")
     with pytest.raises(FormatError, match="line 3: stamp 'x'"):
         read_image_list(tmp_path / "bad.txt")
+    # float() takes "inf": it went into a keyframe, a ValidationError traceback
+    (tmp_path / "bad.txt").write_text("1.0 a.png\ninf b.png\n")
+    with pytest.raises(FormatError, match="line 2: stamp 'inf' is not a finite number"):
+        read_image_list(tmp_path / "bad.txt")
 
 
 def test_nearest_association():
@@ -101,3 +105,18 @@ def test_load_tum_rgbd(tmp_path):
     assert (other.root / other.keyframes[3].depth).resolve() == (tmp_path / f"depth/{stamps[3]:.6f}.png").resolve()
     with pytest.raises(InputError, match="no pose within 0.001 s"):
         load_tum_rgbd(tmp_path, tmp_path / "traj.txt", CAMERA, max_dt=0.001)
+
+
+def test_binary_or_broken_text_files_are_one_line_format_errors(tmp_path):
+    """A binary file given by mistake was a UnicodeDecodeError traceback; PyYAML's error five lines."""
+    from bimgraph.sequence.tum import read_tum
+
+    binary = b"\x7fELF\x02\x01\x01\x00\xf0\x9f\x00\x00"
+    for name, read in [("traj.txt", read_tum), ("depth.txt", read_image_list), ("cam.yaml", load_camera)]:
+        (tmp_path / name).write_bytes(binary)
+        with pytest.raises(FormatError, match=f"{name}: not a text file$"):
+            read(tmp_path / name)
+    (tmp_path / "cam.yaml").write_text("width: 640\nfx: [525\nfy: 525\n")
+    with pytest.raises(FormatError) as err:
+        load_camera(tmp_path / "cam.yaml")
+    assert str(err.value).endswith("cam.yaml: line 3: invalid YAML (expected ',' or ']', but got ':')")

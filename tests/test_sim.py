@@ -343,3 +343,32 @@ def test_over_segmentation_splits_a_surface_in_two(office):
     doubled = sum(len(obs) - len({p["element"] for p in obs}) for obs in gt.observations)
     total = sum(len(obs) for obs in gt.observations)
     assert 0 < doubled < 0.1 * total
+
+
+def test_a_failed_simulation_leaves_no_folder_it_made(tmp_path, monkeypatch):
+    """A truncated IFC left an empty output folder; a stop after the model was written, a folder
+    with model.ifc alone. A folder that was there before keeps what it held."""
+    from typer.testing import CliRunner
+
+    from cli_errors import assert_one_line_error
+
+    from bimgraph.cli import app
+    from bimgraph.sim import observe
+
+    half = tmp_path / "half.ifc"
+    half.write_text("ISO-10303-21;\nHEADER;\nFILE_DESCRIPTION(('ViewDefinition [CoordinationView]'),'2;1');\n")
+    result = CliRunner().invoke(app, ["simulate", "-o", str(tmp_path / "new" / "seq"), "--ifc", str(half)])
+    assert_one_line_error(result, 2, "half.ifc: truncated IFC file")
+    assert not (tmp_path / "new").exists()
+    kept = tmp_path / "kept"
+    kept.mkdir()
+    (kept / "notes.txt").write_text("mine")
+    result = CliRunner().invoke(app, ["simulate", "-o", str(kept), "--ifc", str(half)])
+    assert result.exit_code == 2 and [p.name for p in kept.iterdir()] == ["notes.txt"]
+
+    def stop(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(observe, "detect", stop)
+    result = CliRunner().invoke(app, ["simulate", "-o", str(tmp_path / "stopped"), "-n", "5"])
+    assert result.exit_code == 130 and not (tmp_path / "stopped").exists()

@@ -1,8 +1,12 @@
 """Planes extracted from a simulated depth sequence get ground truth from the label images."""
 
+from pathlib import Path
+
 import numpy as np
+import pytest
 
 from bimgraph.config import Config
+from bimgraph.errors import InputError
 from bimgraph.geometry import normal_angle_deg, plane_from_frame, point_plane_distance
 from bimgraph.planes.sequence import extract_into
 from bimgraph.sequence.format import load_sequence
@@ -37,3 +41,10 @@ def test_extracted_planes_are_labelled_with_their_as_built_element(tmp_path):
             centre_B = T_B_C[:3, :3] @ np.asarray(obs.centre) + T_B_C[:3, 3]
             assert abs(point_plane_distance(centre_B, element_B)) < 0.05
     assert labelled >= 12
+    # A label image gone: one line before anything is written (it was an AttributeError).
+    before = (root / "keyframes.jsonl").read_bytes()
+    label = root / "groundtruth" / "labels" / Path(seq.keyframes[5].depth).name
+    label.unlink()
+    with pytest.raises(InputError, match=f"{label}: no such label image"):
+        extract_into(load_sequence(root), seq.meta.camera, cfg)
+    assert (root / "keyframes.jsonl").read_bytes() == before

@@ -10,16 +10,15 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from cli_errors import assert_one_line_error
+from synthetic_sequence import write_sequence
+
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 
-from bimgraph.backend.synthetic import make_scene  # noqa: E402
-from bimgraph.bim.planemap import save_plane_map  # noqa: E402
 from bimgraph.cli import app  # noqa: E402
 from bimgraph.config import ViewerConfig  # noqa: E402
 from bimgraph.deviations.report import JSON_FILE, DeviationsFile, FaceRecord  # noqa: E402
 from bimgraph.files import write_json  # noqa: E402
-from bimgraph.sequence.format import Camera, InitialAlignment, Sequence, SequenceMeta, save_sequence  # noqa: E402
-from bimgraph.sequence.groundtruth import GroundTruth, pose7, write_groundtruth  # noqa: E402
 from bimgraph.viewer import blueprint as bp  # noqa: E402
 from bimgraph.viewer.rerun_viewer import face_entity  # noqa: E402
 from bimgraph.viewer.rrd import row_counts, verify  # noqa: E402
@@ -29,18 +28,8 @@ N_KEYFRAMES = 60
 
 @pytest.fixture(scope="module")
 def seq_dir(tmp_path_factory):
-    scene = make_scene(n_keyframes=N_KEYFRAMES, rooms=(1, 2), seed=5)
     root = tmp_path_factory.mktemp("viewer_cli") / "seq"
-    root.mkdir()
-    save_plane_map(scene.plane_map, root / "planes.json")
-    meta = SequenceMeta(name="synthetic", model="planes.json", sensor="planes",
-                        camera=Camera(width=640, height=480, fx=525.0, fy=525.0, cx=319.5, cy=239.5),
-                        initial_alignment=InitialAlignment(T_B_S=tuple(pose7(scene.initial.T_B_S))))
-    save_sequence(Sequence(root=root, meta=meta, keyframes=scene.keyframes))
-    observations = [[{"face_id": scene.truth.get((kf.index, i))} for i in range(len(kf.planes))] for kf in scene.keyframes]
-    write_groundtruth(root, GroundTruth(np.array([kf.stamp for kf in scene.keyframes]), np.array(scene.T_B_C),
-                                        scene.T_B_S, {}, observations, {}, [{"index": k, "faces": {}} for k in range(N_KEYFRAMES)]))
-    return root, scene
+    return root, write_sequence(root, N_KEYFRAMES)
 
 
 def scalars(path, entity):
@@ -150,3 +139,39 @@ def test_plot_run_draws_the_run(online_run, seq_dir, tmp_path):
     # the corrected trajectory's blue is drawn
     blue = np.array(Config().viewer.colour_corrected[:3][::-1])  # BGR
     assert (np.abs(image.astype(int) - blue).sum(axis=2) < 30).sum() > 100
+
+
+@pytest.fixture
+def no_viewer(monkeypatch):
+    """Spawning the Rerun viewer is recorded, never done (a test must not open a window, nor
+    wait for one that cannot open)."""
+    import sys
+
+    import rerun
+
+    spawned = []
+    monkeypatch.setattr(rerun.RecordingStream, "spawn", lambda self, **kwargs: spawned.append(kwargs))
+    monkeypatch.setattr(sys, "platform", "linux")
+    for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
+        monkeypatch.delenv(name, raising=False)
+    return spawned
+
+
+def test_without_a_display_the_viewer_is_refused_in_one_line(online_run, seq_dir, tmp_path, no_viewer):
+    """It waited forever for a viewer that exits at once without a display."""
+    root, _ = seq_dir
+    result = CliRunner().invoke(app, ["view", str(online_run), "--sequence", str(root)])
+    assert_one_line_error(result, 4, "no display", "--rrd FILE")
+    # run --spawn refuses before it reads anything or writes its outputs
+    result = CliRunner().invoke(app, ["run", str(root), "-o", str(tmp_path / "out"), "--spawn"])
+    assert_one_line_error(result, 4, "no display", "--rrd FILE")
+    assert not (tmp_path / "out").exists() and no_viewer == []
+
+
+def test_without_the_viewer_executable_spawning_is_one_line(online_run, seq_dir, monkeypatch, no_viewer):
+    root, _ = seq_dir
+    monkeypatch.setenv("DISPLAY", ":0")
+    monkeypatch.setenv("PATH", "")
+    result = CliRunner().invoke(app, ["view", str(online_run), "--sequence", str(root)])
+    assert_one_line_error(result, 4, "no Rerun viewer (`rerun`) on PATH")
+    assert no_viewer == []

@@ -9,14 +9,18 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Annotated, Literal
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
-from bimgraph.backend.landmarks import KEPT, Landmark
+from bimgraph.backend.landmarks import DIRECTION, KEPT, OUT, Landmark
 from bimgraph.backend.records import KeyframeResult, Results
-from bimgraph.files import ensure_folder, write_json
+from bimgraph.files import ensure_folder, read_json, write_json
 from bimgraph.geometry import plane_from_frame, pose_to_tum
+from bimgraph.sequence.format import Vec3
 from bimgraph.sequence.tum import format_tum, write_tum
+from bimgraph.validation import Pose7, parse_model
 
 TRAJECTORY_BIM = "trajectory_bim.tum"
 TRAJECTORY_SLAM = "trajectory_slam.tum"
@@ -37,6 +41,113 @@ def _plane(p: np.ndarray) -> list[float]:
 
 def _finite(x: float):
     return None if x is None or not math.isfinite(x) else round(float(x), 6)
+
+
+class _File(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+# Numbers that a graph gone singular mid-run leaves non-finite are written as null.
+Sigma3 = tuple[float | None, float | None, float | None]
+Row6 = Annotated[list[float | None], Field(min_length=6, max_length=6)]
+Index = Annotated[int, Field(ge=0)]
+
+
+class Unobservable(_File):
+    kind: Literal["rotation", "translation"]
+    axis_B: Vec3
+
+
+class ExtrinsicFile(_File):
+    """extrinsic.json, as `extrinsic_record` writes it."""
+
+    T_B_S: Pose7
+    covariance: Annotated[list[Row6], Field(min_length=6, max_length=6)]
+    covariance_tangent: str = ""
+    sigma_rot_deg: Sigma3
+    sigma_trans_m: Sigma3
+    unobservable: list[Unobservable]
+    keyframe: Index | None
+
+
+class AssociationRecord(_File):
+    landmark: Index
+    face: str
+    landmark_face: str
+    score: float | None
+    alignment: Literal[KEPT, DIRECTION, OUT]
+    keyframes: list[Index]
+    observations: list[tuple[Index, Index]]
+
+
+class AssociationsFile(_File):
+    """associations.json, as `associations_record` writes it."""
+
+    associations: list[AssociationRecord]
+
+    def face_of_observation(self) -> dict[tuple[int, int], str]:
+        """(keyframe index, plane index) -> the face that observation was associated with."""
+        return {(k, i): a.face for a in self.associations for k, i in a.observations}
+
+
+class Latency(_File):
+    median: float
+    p95: float
+    max: float
+
+
+class Tolerance(_File):
+    normal_deg: float
+    offset_m: float
+
+
+class SigmaScale(_File):
+    rotation: float
+    translation: float
+
+
+class FrontendDrift(_File):
+    rotation_deg_per_m: Vec3
+    translation_percent: Vec3
+    odometry_sigma_scale: SigmaScale
+
+
+class Challenge(_File):
+    complement_taken: bool
+    margin: float
+    contested_faces: list[str]
+
+
+class SummaryFile(_File):
+    """summary.json, as `summary_record` writes it (docs/formats.md, "Run outputs")."""
+
+    mode: Literal["online", "offline"]
+    finished: bool
+    sequence: str | None = None  # (absent when the Python API wrote the run)
+    model: str | None = None
+    keyframes: Index
+    landmarks: Index
+    matched_landmarks: Index
+    matched_faces: Index
+    off_plan_landmarks: Index
+    timings_s: dict[str, float]
+    latency_ms: Latency | None = None
+    rounds: Index | None = None
+    bim_tolerance: Tolerance | None = None
+    frontend_drift: FrontendDrift | None = None
+    alignment_challenge: Challenge | None = None
+
+
+def load_summary(path: Path) -> SummaryFile:
+    return parse_model(SummaryFile, read_json(path), str(path))
+
+
+def load_extrinsic(path: Path) -> ExtrinsicFile:
+    return parse_model(ExtrinsicFile, read_json(path), str(path))
+
+
+def load_associations(path: Path) -> AssociationsFile:
+    return parse_model(AssociationsFile, read_json(path), str(path))
 
 
 def extrinsic_record(T_B_S: np.ndarray, cov: np.ndarray, unobservable: list[dict], keyframe: int | None) -> dict:

@@ -20,8 +20,9 @@ from bimgraph.config.results import BaselineConfig, DeviationConfig, ViewerConfi
 from bimgraph.config.section import Section
 from bimgraph.config.sensing import DepthNoiseConfig, ExtractionConfig, PlaneNoiseConfig
 from bimgraph.config.sim import AsBuiltConfig, FrontEndConfig, ObserveConfig, SimConfig, TrajectoryConfig
-from bimgraph.errors import ConfigError
-from bimgraph.validation import describe
+from bimgraph.errors import ConfigError, InputError
+from bimgraph.files import read_yaml
+from bimgraph.validation import parse_model
 
 __all__ = ["AsBuiltConfig", "BackendConfig", "BaselineConfig", "BimAssociationConfig", "BimImportConfig", "Config",
            "DepthNoiseConfig", "DeviationConfig", "ExtractionConfig", "FrontEndConfig", "Isam2Config", "NoiseConfig",
@@ -41,21 +42,15 @@ class Config(Section):
 
 
 def load_config(path: Path | None) -> Config:
-    """The defaults, overridden by the YAML file at `path` if given."""
+    """The defaults, overridden by the YAML file at `path` if given. Anything wrong with that
+    file, from missing or not YAML to a value out of range, is a ConfigError (exit code 4)."""
     if path is None:
         return Config()
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"{path}: no such configuration file")
     try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as err:
-        raise ConfigError(f"{path}: invalid YAML ({err})") from None
-    try:
-        return Config.model_validate(data)
-    except Exception as err:  # pydantic.ValidationError
-        msg = describe(err) if hasattr(err, "errors") else str(err)
-        raise ConfigError(f"{path}: {msg}") from None
+        data = read_yaml(path)
+    except InputError as err:  # (a FormatError too) the file --config names is configuration
+        raise ConfigError(str(err)) from None
+    return parse_model(Config, {} if data is None else data, str(path), error=ConfigError)
 
 
 def default_yaml() -> str:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from bimgraph.config.section import Section
 
@@ -34,6 +34,10 @@ class DeviationConfig(Section):
     online_refine: bool = Field(True, description="after an online run, measure the walls where the offline rounds take its graph (the drift and odometry noise estimated, the robust alignment, re-association), not at its own batch solution: the online graph keeps the given odometry noise, looser than the front-end's (offline estimates it at 0.2-0.4 of it on the simulated walks), so walls built off plan bend its trajectory and sound faces read centimetres off at several sigma (office 2: 8 of 31 faces beyond 3 sigma, none refined). Costs about the offline rounds: 3-5 s on a 600-keyframe walk")
     bcf_author: str = Field("bimgraph", description="author of the BCF topics")
     bcf_view_distance_m: float = Field(3.0, gt=0, description="the BCF viewpoint looks at the face's centre from this far along its normal")
+
+    @model_validator(mode="after")
+    def _ranges(self):
+        return self.ordered(("visibility_min_range_m", "visibility_max_range_m"))
 
 
 class BaselineConfig(Section):

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from bimgraph.config.section import Section
 
@@ -49,6 +49,10 @@ class DepthNoiseConfig(Section):
     tilt_sigma_per_m: float = Field(0.002, ge=0, description="systematic part, drawn once per frame: sigma of each of two depth error terms linear across and down the image (1 at the image border), per squared metre of depth (0.002 = 2 mm at 1 m, 8 mm at 2 m); tilts fitted planes; 0 turns it off")
     curvature_sigma_per_m: float = Field(0.0002, ge=0, description="systematic part, drawn once per frame: the same for three quadratic terms (saddle, astigmatism, bowl); bends planes, so plane extraction splits walls when it is large; 0 turns it off")
 
+    @model_validator(mode="after")
+    def _ranges(self):
+        return self.ordered(("min_range_m", "max_range_m"), ("grazing_start_deg", "grazing_end_deg"))
+
     def sigma(self, z):
         """Standard deviation of the per-pixel depth noise at depth z (metres, scalar or array)."""
         return self.sigma_a_m + self.sigma_b_per_m * z * z
@@ -80,3 +84,7 @@ class ExtractionConfig(Section):
     min_area_m2: float = Field(0.2, ge=0, description="smallest area of a reported plane")
     polygon_tolerance_px: float = Field(2.0, ge=0, description="the extent polygon may deviate from the region outline by this many pixels")
     systematic: PlaneNoiseConfig = Field(default_factory=PlaneNoiseConfig, description="the sensor's systematic plane error, added to the covariance from the pixels (which averages per-pixel noise away and so alone is far too confident)")
+
+    @model_validator(mode="after")
+    def _ranges(self):
+        return self.ordered(("min_depth_m", "max_depth_m"))

@@ -23,9 +23,7 @@ class AsBuiltConfig(Section):
 
     @model_validator(mode="after")
     def _ranges(self):
-        if self.offset_min_m > self.offset_max_m:
-            raise ValueError("offset_min_m is above offset_max_m")
-        return self
+        return self.ordered(("offset_min_m", "offset_max_m"))
 
 
 class TrajectoryConfig(Section):
@@ -51,9 +49,7 @@ class TrajectoryConfig(Section):
 
     @model_validator(mode="after")
     def _ranges(self):
-        if self.height_min_m > self.height_max_m:
-            raise ValueError("height_min_m is above height_max_m")
-        return self
+        return self.ordered(("height_min_m", "height_max_m"))
 
 
 class FrontEndConfig(Section):
@@ -81,6 +77,10 @@ class ObserveConfig(Section):
     floors_and_ceilings: bool = Field(True, description="also detect floor and ceiling planes")
     oversegment_probability: float = Field(0.05, ge=0, le=1, description="chance that a detector splits a plane (twice the minimum area or more) into two detections")
 
+    @model_validator(mode="after")
+    def _ranges(self):
+        return self.ordered(("min_range_m", "max_range_m"))
+
 
 class SimConfig(Section):
     """Simulator (bimgraph simulate)."""
@@ -107,4 +107,8 @@ class SimConfig(Section):
             lo, hi = getattr(self, name)
             if not 0 <= lo <= hi:
                 raise ValueError(f"{name} must be a range [low, high] with 0 <= low <= high")
+        # the planes sensor ray-casts an image `observe.stride_px` times smaller: it needs a pixel
+        stride = self.observe.stride_px
+        if min(self.width, self.height) < stride:
+            raise ValueError(f"width and height ({self.width}x{self.height}) must be at least observe.stride_px ({stride})")
         return self

@@ -9,13 +9,14 @@ from pathlib import Path
 import numpy as np
 
 from bimgraph.backend.pipeline import initial_alignment, load_model, model_path
-from bimgraph.backend.results import ASSOCIATIONS, EXTRINSIC, METRICS, SUMMARY, TRAJECTORY_BIM
+from bimgraph.backend.results import (ASSOCIATIONS, EXTRINSIC, METRICS, SUMMARY, TRAJECTORY_BIM, load_associations,
+                                      load_extrinsic, load_summary)
 from bimgraph.config import Config
 from bimgraph.deviations.report import FACE_STATUSES, JSON_FILE as DEVIATIONS_JSON, load_deviations
 from bimgraph.errors import FormatError, InputError
 from bimgraph.evaluation.baselines import estimate_extrinsics, matched_planes
 from bimgraph.evaluation.evaluate import Estimate, evaluate
-from bimgraph.files import read_json, write_json
+from bimgraph.files import write_json
 from bimgraph.geometry import pose_from_tum
 from bimgraph.sequence.format import Sequence, load_sequence
 from bimgraph.sequence.groundtruth import GroundTruth, load_groundtruth
@@ -29,15 +30,8 @@ def load_estimate(out_dir: Path) -> Estimate:
     if not out_dir.is_dir():
         raise InputError(f"{out_dir}: no such output folder")
     _, T_B_C = read_tum(out_dir / TRAJECTORY_BIM)
-    extrinsic = read_json(out_dir / EXTRINSIC)
-    try:
-        T_B_S = pose_from_tum(extrinsic["T_B_S"])
-    except (KeyError, TypeError, ValueError):
-        raise FormatError(f"{out_dir / EXTRINSIC}: T_B_S must be 7 numbers") from None
-    associations = {}
-    for record in read_json(out_dir / ASSOCIATIONS).get("associations", []):
-        for k, i in record["observations"]:
-            associations[(int(k), int(i))] = record["face"]
+    T_B_S = pose_from_tum(load_extrinsic(out_dir / EXTRINSIC).T_B_S)
+    associations = load_associations(out_dir / ASSOCIATIONS).face_of_observation()
     return Estimate(list(T_B_C), T_B_S, associations)
 
 
@@ -75,10 +69,10 @@ class Evaluation:
 
 def run_timings(out_dir: Path) -> dict:
     """The run's total seconds and median per-keyframe latency, from its summary.json."""
-    summary = read_json(Path(out_dir) / SUMMARY)
-    out = {"run_s": summary.get("timings_s", {}).get("total_s")}
-    if "latency_ms" in summary:
-        out["latency_median_ms"] = summary["latency_ms"]["median"]
+    summary = load_summary(Path(out_dir) / SUMMARY)
+    out = {"run_s": summary.timings_s.get("total_s")}
+    if summary.latency_ms is not None:
+        out["latency_median_ms"] = summary.latency_ms.median
     return out
 
 
@@ -87,26 +81,26 @@ def run_summary(out_dir: Path) -> list[tuple[str, str]]:
     needed): keyframes, landmarks and matches, `T_B_S` with its sigmas and unobservable
     directions, the front-end's drift, the walls' verdicts, time."""
     out_dir = Path(out_dir)
-    summary = read_json(out_dir / SUMMARY)
-    extrinsic = read_json(out_dir / EXTRINSIC)
-    T_B_S = pose_from_tum(extrinsic["T_B_S"])
+    summary = load_summary(out_dir / SUMMARY)
+    extrinsic = load_extrinsic(out_dir / EXTRINSIC)
+    T_B_S = pose_from_tum(extrinsic.T_B_S)
     yaw = np.degrees(np.arctan2(T_B_S[1, 0], T_B_S[0, 0]))
-    sigma_cm = ", ".join(f"{100 * s:.1f}" for s in extrinsic["sigma_trans_m"])
-    sigma_deg = ", ".join(f"{s:.2f}" for s in extrinsic["sigma_rot_deg"])
-    unobservable = "; ".join(f"{u['kind']} along {np.round(u['axis_B'], 3).tolist()} (held at the initial alignment)"
-                             for u in extrinsic.get("unobservable", [])) or "none"
-    rows = [("mode", summary["mode"] + ("" if summary.get("finished", True) else " (stopped early: outputs up to the last keyframe written)")),
-            ("keyframes", str(summary["keyframes"])),
-            ("landmarks", f"{summary['landmarks']}, {summary['matched_landmarks']} matched to {summary['matched_faces']} BIM faces"),
+    sigma_cm = ", ".join("?" if s is None else f"{100 * s:.1f}" for s in extrinsic.sigma_trans_m)
+    sigma_deg = ", ".join("?" if s is None else f"{s:.2f}" for s in extrinsic.sigma_rot_deg)
+    unobservable = "; ".join(f"{u.kind} along {np.round(u.axis_B, 3).tolist()} (held at the initial alignment)"
+                             for u in extrinsic.unobservable) or "none"
+    rows = [("mode", summary.mode + ("" if summary.finished else " (stopped early: outputs up to the last keyframe written)")),
+            ("keyframes", str(summary.keyframes)),
+            ("landmarks", f"{summary.landmarks}, {summary.matched_landmarks} matched to {summary.matched_faces} BIM faces"),
             ("T_B_S", f"position {np.round(T_B_S[:3, 3], 3).tolist()} m, heading {yaw:.2f} deg"),
             ("T_B_S sigma", f"position {sigma_cm} cm, rotation {sigma_deg} deg"),
             ("unobservable", unobservable)]
-    if drift := summary.get("frontend_drift"):
-        rows.append(("front-end drift", f"correction {drift['rotation_deg_per_m'][2]:+.3f} deg/m about z, "
-                                        f"{np.linalg.norm(drift['translation_percent']):.2f} % of the distance"))
-    if challenge := summary.get("alignment_challenge"):
-        taken = "the complement of the first consensus, ahead" if challenge["complement_taken"] else "consensus ahead of its complement"
-        rows.append(("alignment", f"{taken} by {challenge['margin']:.1f} ({len(challenge['contested_faces'])} faces "
+    if drift := summary.frontend_drift:
+        rows.append(("front-end drift", f"correction {drift.rotation_deg_per_m[2]:+.3f} deg/m about z, "
+                                        f"{np.linalg.norm(drift.translation_percent):.2f} % of the distance"))
+    if challenge := summary.alignment_challenge:
+        taken = "the complement of the first consensus, ahead" if challenge.complement_taken else "consensus ahead of its complement"
+        rows.append(("alignment", f"{taken} by {challenge.margin:.1f} ({len(challenge.contested_faces)} faces "
                                   "judged otherwise there)"))
     if (out_dir / DEVIATIONS_JSON).is_file():
         deviations = load_deviations(out_dir / DEVIATIONS_JSON)
@@ -116,12 +110,12 @@ def run_summary(out_dir: Path) -> list[tuple[str, str]]:
         rows += [("deviating", f"{f.wall_name or f.wall_guid} ({f.face_id}): offset {100 * f.offset_m:+.1f} ± "
                                f"{100 * f.offset_sigma_m:.1f} cm, tilt {f.tilt_deg:.2f} ± {f.tilt_sigma_deg:.2f} deg")
                  for f in deviations.faces if f.status == "deviating"]
-    seconds = summary.get("timings_s", {}).get("total_s")
-    if "latency_ms" in summary:
-        latency = summary["latency_ms"]
-        rows.append(("time", f"{seconds:.1f} s, per keyframe median {latency['median']:.1f} ms, p95 {latency['p95']:.1f} ms"))
+    seconds = summary.timings_s.get("total_s")
+    if summary.latency_ms is not None:
+        latency = summary.latency_ms
+        rows.append(("time", f"{seconds:.1f} s, per keyframe median {latency.median:.1f} ms, p95 {latency.p95:.1f} ms"))
     elif seconds is not None:
-        rows.append(("time", f"{seconds:.1f} s in {summary.get('rounds', 1)} rounds"))
+        rows.append(("time", f"{seconds:.1f} s in {summary.rounds or 1} rounds"))
     return rows
 
 

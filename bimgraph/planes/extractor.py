@@ -24,6 +24,7 @@ import gtsam
 import numpy as np
 
 from bimgraph.config import DepthNoiseConfig, ExtractionConfig
+from bimgraph.errors import ConfigError
 from bimgraph.sequence.format import Camera
 
 
@@ -70,7 +71,8 @@ class PlaneExtractor:
         c = cfg.cell_size_px
         self.rows, self.cols = camera.height // c, camera.width // c
         if self.rows < 2 or self.cols < 2:
-            raise ValueError(f"cells of {c} px leave fewer than 2x2 cells in a {camera.width}x{camera.height} image")
+            raise ConfigError(f"planes.cell_size_px: cells of {c} px leave fewer than 2x2 cells in the camera's "
+                              f"{camera.width}x{camera.height} image")
         # Pixel offsets from each cell's centre: small numbers, so float32 sums stay exact enough.
         self._local = np.arange(c, dtype=np.float32) - (c - 1) / 2.0
         centre_u = np.arange(self.cols) * c + (c - 1) / 2.0

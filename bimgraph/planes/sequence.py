@@ -3,15 +3,17 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
 from bimgraph.config import Config, DepthNoiseConfig, ExtractionConfig
-from bimgraph.errors import BimgraphError, InputError
+from bimgraph.errors import BimgraphError, ConfigError, InputError
 from bimgraph.planes.extractor import DetectedPlane, Extraction, PlaneExtractor
-from bimgraph.sequence.format import Camera, Keyframe, PlaneObservation, Sequence, save_sequence
-from bimgraph.sequence.tum_rgbd import read_depth_png
+from bimgraph.sequence.format import META_FILE, Camera, Keyframe, PlaneObservation, Sequence, load_sequence, save_sequence
+from bimgraph.sequence.tum_rgbd import DEPTH_LIST, load_camera, load_tum_rgbd, read_depth_png, read_image_list
+from bimgraph.validation import parse_model
 
 
 @dataclass
@@ -44,12 +46,14 @@ def load_depth(seq: Sequence, kf: Keyframe, camera: Camera) -> np.ndarray:
 
 def detect_planes(seq: Sequence, camera: Camera, cfg: ExtractionConfig, noise: DepthNoiseConfig,
                   on_frame: Callable[[Keyframe, Extraction | None], None] | None = None) -> DetectionReport:
-    """Replace every keyframe's planes by those extracted from its depth image. A frame that
-    cannot be read gets no planes (and `on_frame` no extraction) and one line in the report;
-    the others go on."""
+    """Replace the planes of every keyframe that has a depth image by those extracted from it;
+    a keyframe without one keeps its planes. A frame that cannot be read gets no planes (and
+    `on_frame` no extraction) and one line in the report; the others go on."""
     extractor = PlaneExtractor(camera, cfg, noise)
     report = DetectionReport()
     for i, kf in enumerate(seq.keyframes):
+        if kf.depth is None:
+            continue
         try:
             extraction = extractor.extract(load_depth(seq, kf, camera))
             planes = extraction.planes
@@ -66,10 +70,15 @@ def detect_planes(seq: Sequence, camera: Camera, cfg: ExtractionConfig, noise: D
 
 def extract_into(seq: Sequence, camera: Camera, cfg: Config,
                  on_frame: Callable[[Keyframe, Extraction | None], None] | None = None) -> DetectionReport:
-    """Extract the planes of every keyframe and save the sequence; a simulated depth sequence
-    also gets the ground truth of its new planes, so that it can be evaluated."""
+    """Extract the planes of every keyframe that has a depth image and save the sequence; a
+    simulated depth sequence also gets the ground truth of its new planes, so that it can be
+    evaluated. A sequence without depth images is refused before anything is written (its
+    planes are all it has). The keyframes file is replaced once, atomically, after the last
+    frame: a failure or Ctrl-C half-way leaves it as it was."""
     from bimgraph.sim.labels import simulated_labeller
 
+    if not any(kf.depth for kf in seq.keyframes):
+        raise InputError(f"{seq.root}: no keyframe has a depth image (a sequence of plane detections?); nothing written")
     labeller = simulated_labeller(seq.root)
     position = {kf.index: i for i, kf in enumerate(seq.keyframes)}
 
@@ -97,7 +106,34 @@ def resolve_camera(seq: Sequence | None, intrinsics: Camera | None, pinhole: tup
             raise InputError("no depth image to take the image size from")
         height, width = read_depth_png(first_depth).shape
         fx, fy, cx, cy = pinhole
-        return Camera(width=width, height=height, fx=fx, fy=fy, cx=cx, cy=cy)
+        return parse_model(Camera, dict(width=width, height=height, fx=fx, fy=fy, cx=cx, cy=cy),
+                           "--fx --fy --cx --cy", error=ConfigError)
     if seq is not None and seq.meta.camera is not None:
         return seq.meta.camera
     raise InputError("no intrinsics: give --intrinsics FILE or --fx --fy --cx --cy")
+
+
+def open_input(folder: Path, trajectory: Path | None = None, intrinsics: Path | None = None,
+               pinhole: tuple = (None, None, None, None), max_dt: float = 0.02) -> tuple[Sequence, Camera]:
+    """What `bimgraph planes` extracts into, and the camera: a sequence folder, or a plain TUM
+    RGB-D folder with a `trajectory` of any SLAM (keyframes within `max_dt` s of a pose). The
+    camera comes from `intrinsics` (a file), `pinhole` (fx, fy, cx, cy; all or none) or the
+    sequence. Which options go together, and `max_dt`, are checked before any file is read;
+    the pinhole values once the first depth image gives the image size."""
+    folder = Path(folder)
+    given = [v is not None for v in pinhole]
+    if any(given) and not all(given):
+        raise ConfigError("give all four of --fx --fy --cx --cy")
+    if not max_dt >= 0:  # (NaN too)
+        raise ConfigError(f"--max-dt must be at least 0 s, not {max_dt}")
+    pinhole = tuple(pinhole) if all(given) else None
+    camera_file = load_camera(intrinsics) if intrinsics is not None else None
+    if trajectory is not None:
+        _, names = read_image_list(folder / DEPTH_LIST)
+        camera = resolve_camera(None, camera_file, pinhole, folder / names[0] if names else None)
+        return load_tum_rgbd(folder, trajectory, camera, max_dt=max_dt), camera
+    if not (folder / META_FILE).is_file():
+        raise ConfigError(f"{folder}: no {META_FILE}; for a TUM RGB-D folder give --trajectory")
+    seq = load_sequence(folder)
+    first = next((folder / kf.depth for kf in seq.keyframes if kf.depth), None)
+    return seq, resolve_camera(seq, camera_file, pinhole, first)

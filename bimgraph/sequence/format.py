@@ -18,7 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from bimgraph.errors import FormatError, InputError
 from bimgraph.files import read_json, write_atomic, write_json
 from bimgraph.geometry import pose_from_tum
-from bimgraph.validation import parse_model, require_unit
+from bimgraph.validation import Pose7, parse_model, require_unit
 
 FORMAT = "bimgraph.sequence"
 VERSION = 1
@@ -26,7 +26,6 @@ META_FILE = "sequence.json"
 KEYFRAMES_FILE = "keyframes.jsonl"
 
 Vec3 = tuple[float, float, float]
-Pose7 = tuple[float, float, float, float, float, float, float]
 Mat3 = tuple[Vec3, Vec3, Vec3]
 
 
@@ -116,12 +115,6 @@ class Keyframe(BaseModel):
     planes: list[PlaneObservation] = []
     depth: str | None = None
     rgb: str | None = None
-
-    @field_validator("T_S_C")
-    @classmethod
-    def _unit_quaternion(cls, v):
-        require_unit(v[3:], "quaternion")
-        return v
 
     @field_validator("cov")
     @classmethod

@@ -18,11 +18,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
 from bimgraph.errors import FormatError, InputError
-from bimgraph.files import read_json, write_atomic, write_json
+from bimgraph.files import read_json, read_text, write_atomic, write_json
 from bimgraph.geometry import pose_from_tum, pose_to_tum
 from bimgraph.sequence.tum import read_tum, write_tum
+from bimgraph.validation import Pose7, parse_model
 
 FOLDER = "groundtruth"
 TRAJECTORY_FILE = "T_B_C.tum"
@@ -31,6 +33,32 @@ OBSERVATIONS_FILE = "observations.jsonl"
 AS_BUILT_FILE = "as_built.json"
 VISIBLE_FILE = "visible.jsonl"
 LABELS_FOLDER = "labels"
+
+
+class _Extrinsic(BaseModel):
+    """What is read of T_B_S.json; the rest (the initial alignment, the drift) is kept as read."""
+
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+    T_B_S: Pose7
+
+
+class _PlaneTruth(BaseModel):
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+    face_id: str | None = None
+
+
+class _Observations(BaseModel):
+    """A line of observations.jsonl: the truth of each plane of keyframe `index`, in order."""
+
+    model_config = ConfigDict(extra="forbid")
+    index: int = Field(ge=0)
+    planes: list[_PlaneTruth]
+
+
+class _Visible(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    index: int = Field(ge=0)
+    faces: dict[str, int]
 
 
 @dataclass
@@ -72,17 +100,18 @@ def write_groundtruth(root: Path, gt: GroundTruth) -> None:
     write_atomic(folder / VISIBLE_FILE, _jsonl(gt.visible))
 
 
-def _read_jsonl(path: Path) -> list[dict]:
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
+def _read_jsonl(path: Path, model: type[BaseModel]) -> list[dict]:
+    """The records of a JSON Lines file as read, each validated as `model`."""
     records = []
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+    for lineno, line in enumerate(read_text(path).splitlines(), start=1):
         if not line.strip():
             continue
         try:
-            records.append(json.loads(line))
+            record = json.loads(line)
         except json.JSONDecodeError as err:
             raise FormatError(f"{path}: line {lineno}: invalid JSON ({err.msg})") from None
+        parse_model(model, record, f"{path}: line {lineno}")
+        records.append(record)
     return records
 
 
@@ -93,12 +122,10 @@ def load_groundtruth(root: Path) -> GroundTruth:
         raise InputError(f"{root}: no {FOLDER}/ folder (not a simulated sequence)")
     stamps, T_B_C = read_tum(folder / TRAJECTORY_FILE)
     extrinsic = read_json(folder / EXTRINSIC_FILE)
-    try:
-        T_B_S = pose_from_tum(extrinsic.pop("T_B_S"))
-    except (KeyError, ValueError, TypeError, AttributeError):
-        raise FormatError(f"{folder / EXTRINSIC_FILE}: T_B_S must be 7 numbers (tx ty tz qx qy qz qw)") from None
-    observations = [r.get("planes", []) for r in _read_jsonl(folder / OBSERVATIONS_FILE)]
-    visible = _read_jsonl(folder / VISIBLE_FILE)
+    T_B_S = pose_from_tum(parse_model(_Extrinsic, extrinsic, str(folder / EXTRINSIC_FILE)).T_B_S)
+    del extrinsic["T_B_S"]
+    observations = [r["planes"] for r in _read_jsonl(folder / OBSERVATIONS_FILE, _Observations)]
+    visible = _read_jsonl(folder / VISIBLE_FILE, _Visible)
     for name, records in [(OBSERVATIONS_FILE, observations), (VISIBLE_FILE, visible)]:
         if len(records) != len(stamps):
             raise FormatError(f"{folder / name}: {len(records)} keyframes, {TRAJECTORY_FILE} has {len(stamps)}")

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bimgraph.errors import FormatError, InputError
-from bimgraph.files import write_atomic
+from bimgraph.errors import FormatError
+from bimgraph.files import read_text, write_atomic
 from bimgraph.geometry import pose_from_tum, pose_to_tum
 
 
@@ -30,10 +30,7 @@ def write_tum(path: Path, stamps, poses) -> None:
 def data_lines(path: Path):
     """(line number, fields) of every line of a TUM text file that is neither blank nor a
     `#` comment; fields split at white space (and commas, as some tools write)."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+    for lineno, line in enumerate(read_text(path).splitlines(), start=1):
         line = line.strip()
         if line and not line.startswith("#"):
             yield lineno, line.replace(",", " ").split()

@@ -8,14 +8,14 @@ relative to the folder. A depth pixel of 0 means no return.
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from bimgraph.errors import FormatError, InputError
-from bimgraph.files import read_json, write_atomic
+from bimgraph.files import read_json, read_yaml, write_atomic
 from bimgraph.geometry import pose_to_tum
 from bimgraph.sequence.format import Camera, Keyframe, Sequence, SequenceMeta
 from bimgraph.sequence.tum import data_lines, read_tum
@@ -64,9 +64,12 @@ def read_image_list(path: Path) -> tuple[np.ndarray, list[str]]:
         if len(fields) != 2:
             raise FormatError(f"{path}: line {lineno}: expected `stamp path`, got {len(fields)} fields")
         try:
-            stamps.append(float(fields[0]))
+            stamp = float(fields[0])
         except ValueError:
-            raise FormatError(f"{path}: line {lineno}: stamp {fields[0]!r} is not a number") from None
+            stamp = math.nan
+        if not math.isfinite(stamp):  # (float() takes "nan" and "inf")
+            raise FormatError(f"{path}: line {lineno}: stamp {fields[0]!r} is not a finite number")
+        stamps.append(stamp)
         names.append(fields[1])
     return np.array(stamps), names
 
@@ -81,15 +84,7 @@ def write_image_list(path: Path, stamps, names, kind: str) -> None:
 def load_camera(path: Path) -> Camera:
     """Intrinsics from a YAML or JSON file with width, height, fx, fy, cx, cy (depth_scale optional)."""
     path = Path(path)
-    if path.suffix.lower() == ".json":
-        data = read_json(path)
-    else:
-        if not path.is_file():
-            raise InputError(f"{path}: no such file")
-        try:
-            data = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as err:
-            raise FormatError(f"{path}: invalid YAML ({err})") from None
+    data = read_json(path) if path.suffix.lower() == ".json" else read_yaml(path)
     return parse_model(Camera, data, str(path))
 
 

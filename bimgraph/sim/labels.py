@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bimgraph.errors import InputError
 from bimgraph.planes.extractor import Extraction
 from bimgraph.sequence.format import Keyframe
 from bimgraph.sequence.groundtruth import FOLDER, LABELS_FOLDER, GroundTruth, load_groundtruth, write_groundtruth
@@ -28,7 +29,11 @@ class DetectionLabeller:
 
         records = []
         if extraction is not None and kf.depth is not None:
-            element_px = cv2.imread(str(self.folder / Path(kf.depth).name), cv2.IMREAD_UNCHANGED).astype(np.int64) - 1
+            path = self.folder / Path(kf.depth).name
+            image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            if image is None:  # (the run stops before anything is written: the ground truth would lack it)
+                raise InputError(f"{path}: no such label image (ground truth of {kf.depth})")
+            element_px = image.astype(np.int64) - 1
             plane_px = extraction.labels
             R_B_C = self.gt.T_B_C[position][:3, :3]
             for p, plane in enumerate(extraction.planes):

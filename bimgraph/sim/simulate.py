@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 
 from bimgraph.config import Config
 from bimgraph.errors import ConfigError, InputError
-from bimgraph.files import ensure_folder
+from bimgraph.files import new_folder
 from bimgraph.geometry import make_pose
 from bimgraph.sequence.format import Camera, InitialAlignment, Keyframe, Sequence, SequenceMeta, save_sequence
 from bimgraph.sequence.groundtruth import LABELS_FOLDER, GroundTruth, pose7, rounded, write_groundtruth
@@ -114,11 +114,18 @@ def _as_built_record(storey: world.Storey, deviations, elements) -> dict:
 
 def simulate(opts: SimOptions, cfg: Config, log: Callable[[str], None] = lambda m: None,
              progress: Callable[[int, int], None] = lambda done, total: None) -> dict:
-    """Write the sequence folder `opts.output`; returns a summary (counts, drift, timings)."""
+    """Write the sequence folder `opts.output`; returns a summary (counts, drift, timings).
+    A simulation that fails (a truncated IFC, a storey without rooms, Ctrl-C) removes the
+    folder if it made it: an empty or half-written sequence folder would stand as a sequence."""
+    opts.check()
+    with new_folder(opts.output):
+        return _simulate(opts, cfg, log, progress)
+
+
+def _simulate(opts: SimOptions, cfg: Config, log: Callable[[str], None], progress: Callable[[int, int], None]) -> dict:
     from bimgraph.bim.ifc_import import import_ifc
     from bimgraph.sim.render import DepthRenderer
 
-    opts.check()
     scenario = opts.scenario if opts.scenario is not None or opts.ifc is not None else "office"
     sim = cfg.sim
     timings: dict[str, float] = {}
@@ -131,7 +138,6 @@ def simulate(opts: SimOptions, cfg: Config, log: Callable[[str], None] = lambda 
         clock = now
 
     out = Path(opts.output)
-    ensure_folder(out)
     if scenario is not None:
         from bimgraph.bim.ifc_write import write_ifc
         from bimgraph.sim.scenarios import make

@@ -11,7 +11,6 @@ import numpy as np
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import Config
 from bimgraph.errors import FormatError, InputError
-from bimgraph.files import read_json
 from bimgraph.geometry import inverse
 from bimgraph.sequence.format import SequenceMeta, load_sequence
 from bimgraph.viewer.follow import mark_deviations, read_depth
@@ -52,21 +51,6 @@ def finish(viewer: RerunViewer, out_dir: Path) -> None:
     viewer.close()
 
 
-def face_by_observation(out_dir: Path) -> dict[tuple[int, int], str]:
-    """(keyframe index, plane index) -> face id, from associations.json (final associations)."""
-    from bimgraph.backend.results import ASSOCIATIONS
-
-    path = Path(out_dir) / ASSOCIATIONS
-    faces = {}
-    try:
-        for a in read_json(path)["associations"]:
-            for k, i in a["observations"]:
-                faces[(int(k), int(i))] = str(a["face"])
-    except (KeyError, TypeError, ValueError):
-        raise FormatError(f"{path}: expected {{'associations': [{{'face', 'observations': [[k, i], ...]}}]}}") from None
-    return faces
-
-
 def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | None = None,
                  rrd: Path | None = None, spawn: bool = False) -> int:
     """Log a finished run's output folder (trajectory_bim.tum, trajectory_slam.tum,
@@ -74,14 +58,15 @@ def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | N
     of keyframes logged. The extrinsic at each keyframe is recovered as
     `T_B_C @ inverse(T_S_C)` from the two trajectories; associations are the final ones."""
     from bimgraph.backend.pipeline import initial_alignment, load_model, model_path
-    from bimgraph.backend.results import SUMMARY, TRAJECTORY_BIM, TRAJECTORY_SLAM
+    from bimgraph.backend.results import (ASSOCIATIONS, SUMMARY, TRAJECTORY_BIM, TRAJECTORY_SLAM, load_associations,
+                                          load_summary)
     from bimgraph.sequence.tum import read_tum
 
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
         raise InputError(f"{out_dir}: no such output folder")
     if seq_dir is None:
-        named = read_json(out_dir / SUMMARY).get("sequence") if (out_dir / SUMMARY).is_file() else None
+        named = load_summary(out_dir / SUMMARY).sequence if (out_dir / SUMMARY).is_file() else None
         if named is None:
             raise InputError(f"{out_dir}: the run does not name its sequence; give it with --sequence SEQDIR")
         seq_dir = Path(named)
@@ -94,7 +79,7 @@ def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | N
     keyframes = seq.keyframes[:len(stamps)]  # an interrupted online run covers a prefix
     if len(stamps) > len(seq.keyframes) or np.abs(np.array([kf.stamp for kf in keyframes]) - stamps).max() > _STAMP_TOL:
         raise InputError(f"{out_dir}: its trajectory's stamps are not those of {seq.root}'s keyframes")
-    faces = face_by_observation(out_dir)
+    faces = load_associations(out_dir / ASSOCIATIONS).face_of_observation()
 
     viewer = open_viewer(seq.root, seq.meta, plane_map, initial_alignment(seq.meta, cfg).T_B_S, cfg, rrd, spawn)
     for kf, T_B_C_k, T_S_C_k in zip(keyframes, T_B_C, T_S_C):

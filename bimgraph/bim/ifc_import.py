@@ -30,7 +30,8 @@ ORIGIN = ("the IfcBuilding's placement (its local coordinate system; the project
 def import_ifc(path, cfg: BimImportConfig, log=None):
     """Read the IFC model at `path` into a PlaneMap in frame B (see ORIGIN); returns
     (plane_map, report) where report is a rich Table of counts and timing. Bad files raise
-    InputError; a wall whose geometry fails is reported through `log` and skipped."""
+    InputError; a wall (or slab) whose geometry fails or gives no face is reported through
+    `log` and skipped."""
     log = log or (lambda message: None)
     started = time.perf_counter()
     path = Path(path)
@@ -42,35 +43,56 @@ def import_ifc(path, cfg: BimImportConfig, log=None):
     voids = {wall.id(): [rel.RelatedOpeningElement for rel in wall.HasOpenings] for wall in walls}
     spaces = model.by_type("IfcSpace")
     meshes, solids = reader.meshes_and_solids(walls, [o for os in voids.values() for o in os] + list(spaces))
-    skipped = [w for w in walls if w.id() not in meshes]
-    for wall in skipped:
-        log(f"warning: wall {wall.GlobalId} ({wall.Name}): no geometry, skipped")
+    skipped = {"walls skipped (no geometry)": _skip(log, "wall", [w for w in walls if w.id() not in meshes], "no geometry")}
     curtain_walls = model.by_type("IfcCurtainWall")
     for wall in curtain_walls:
         log(f"warning: curtain wall {wall.GlobalId} ({wall.Name}): not imported")
 
     wall_faces = _wall_faces(reader, [w for w in walls if w.id() in meshes], meshes, voids, solids, cfg, log)
     sections = _split_per_room(reader, wall_faces, meshes, spaces, solids, cfg)
+    # Whatever takes a wall's faces (a sliver, none vertical or along its axis, all below the
+    # minimum area, or cut up by openings and rooms), it must not vanish unnoticed.
+    imported = {section.wall_guid for section in sections}
+    faceless = [w for w in walls if w.id() in meshes and w.GlobalId not in imported]
+    skipped["walls skipped (no side face)"] = _skip(log, "wall", faceless, f"no side face of at least {cfg.min_face_area_m2} m2")
     if not sections:
         raise InputError(f"{path}: no wall face of at least {cfg.min_face_area_m2} m2")
     if cfg.include_slabs:
-        sections += _slab_faces(reader, cfg)
+        slab_sections, skipped["slabs skipped"] = _slab_faces(reader, cfg, log)
+        sections += slab_sections
     T_W_B = None if np.allclose(reader.T_W_B, np.eye(4)) else tuple(pose_to_tum(reader.T_W_B))
     plane_map = PlaneMap(source=path.name, origin=ORIGIN, T_W_B=T_W_B, faces=sections)
     seconds = time.perf_counter() - started
     return plane_map, _report(path, walls, skipped, curtain_walls, wall_faces, sections, seconds)
 
 
+def _skip(log, kind: str, elements, reason: str) -> int:
+    """Warn that each of `elements` (of `kind`) is skipped for `reason`; returns how many."""
+    for element in elements:
+        log(f"warning: {kind} {element.GlobalId} ({element.Name}): {reason}, skipped")
+    return len(elements)
+
+
 def _wall_faces(reader: ModelReader, walls, meshes, voids, solids, cfg, log) -> list[tuple[object, F.Face, float]]:
     """[(wall, face, depth behind the face)] for every side face, openings cut out (`voids`:
     wall id -> its openings, `solids`: their meshes by id)."""
-    angle_tol = np.radians(cfg.coplanar_angle_deg)
+    angle_tol, axis_tol = np.radians(cfg.coplanar_angle_deg), np.radians(cfg.axis_tol_deg)
     per_wall = {}
     for wall in walls:
         mesh = meshes[wall.id()]
-        axes = reader.axis_directions(wall, mesh.T_B_E) or [F.long_axis(mesh.V)]
+        axis = reader.axis(wall, mesh.T_B_E)
+        steps = np.diff(axis, axis=0) if axis is not None else np.empty((0, 2))
+        steps = steps[np.linalg.norm(steps, axis=1) > 1e-9]
+        # A straight axis says at once which faces are sides. Along a bent or curved one that
+        # depends on where a face lies, and a curved side comes as strips to be merged first.
+        straight = len(steps) <= 1
+        along = [np.append(steps[0] / np.linalg.norm(steps[0]), 0.0)] if len(steps) else [F.long_axis(mesh.V)]
         found = F.vertical_faces(mesh.V, mesh.T, np.radians(cfg.vertical_tol_deg), angle_tol,
-                                 cfg.coplanar_distance_m, cfg.grid_m, axes, np.radians(cfg.axis_tol_deg))
+                                 cfg.coplanar_distance_m, cfg.grid_m, along if straight else None, axis_tol)
+        if not straight:
+            found = F.merge_facets(found, cfg.curved_face_tol_m, cfg.coplanar_distance_m, cfg.grid_m)
+            line = shapely.LineString(axis)
+            found = [face for face in found if F.runs_along(face, line, axis_tol, cfg.grid_m)]
         sides = [(face, F.depth_behind(face, found, angle_tol)) for face in found]
         per_wall[wall.id()] = (wall, sides)
     for opening in (o for wall in walls for o in voids[wall.id()] if o.id() not in solids):
@@ -118,21 +140,28 @@ def _split_per_room(reader: ModelReader, wall_faces, meshes, spaces, solids, cfg
     return sections
 
 
-def _slab_faces(reader: ModelReader, cfg) -> list[BimFace]:
+def _slab_faces(reader: ModelReader, cfg, log) -> tuple[list[BimFace], int]:
     """Top and bottom faces of every slab, openings (stairs, shafts) subtracted by the
-    geometry iterator: slabs have few, and their faces are not split per room."""
+    geometry iterator: slabs have few, and their faces are not split per room. Returns them
+    and how many slabs were skipped (warned about through `log`)."""
     sections = []
     counter = Counter()
     slabs = reader.model.by_type("IfcSlab")
     meshes = reader.meshes(slabs, subtract_openings=True)
+    faceless = []
     for slab in slabs:
         if slab.id() not in meshes:
             continue
         mesh = meshes[slab.id()]
+        found = []
         for face in F.horizontal_faces(mesh.V, mesh.T, np.radians(cfg.vertical_tol_deg), cfg.coplanar_distance_m, cfg.grid_m):
             kind = "slab_top" if face.normal[2] > 0 else "slab_bottom"
-            sections += _sections(reader, slab, face, face.region, cfg, counter, kind=kind)
-    return sections
+            found += _sections(reader, slab, face, face.region, cfg, counter, kind=kind)
+        sections += found
+        if not found:  # e.g. a sloped roof slab
+            faceless.append(slab)
+    skipped = _skip(log, "slab", [s for s in slabs if s.id() not in meshes], "no geometry")
+    return sections, skipped + _skip(log, "slab", faceless, f"no horizontal face of at least {cfg.min_face_area_m2} m2")
 
 
 def _sections(reader, element, face: F.Face, region, cfg, counter: Counter, **fields) -> list[BimFace]:
@@ -168,7 +197,8 @@ def _report(path, walls, skipped, curtain_walls, wall_faces, sections, seconds):
     table.add_column("item")
     table.add_column("count", justify="right")
     table.add_row("walls", str(len(walls)))
-    table.add_row("walls skipped (no geometry)", str(len(skipped)))
+    for item, count in skipped.items():
+        table.add_row(item, str(count))
     table.add_row("curtain walls skipped", str(len(curtain_walls)))
     table.add_row("wall side faces", str(len(wall_faces)))
     slabs = [s for s in sections if s.kind != "wall"]

@@ -150,22 +150,33 @@ class ModelReader:
                 self._storeys[element.id()] = self._storey_rows[container.id()]
         return self._storeys[element.id()]
 
-    def axis_directions(self, wall, T_B_E: np.ndarray) -> list[np.ndarray]:
-        """Horizontal unit directions in B of the segments of a wall's axis representation
-        ([] if it has none that is a polyline); `T_B_E` is the wall's placement."""
+    def axis(self, wall, T_B_E: np.ndarray) -> np.ndarray | None:
+        """The vertices (N x 2, x and y in B) of a wall's axis representation, a curved one
+        (an arc, as Revit and ArchiCAD write curved walls) as the geometry kernel tessellates
+        it; None if it has none the kernel reads. `T_B_E` is the wall's placement."""
         if wall.Representation is None:
-            return []
+            return None
         for representation in wall.Representation.Representations:
             if representation.RepresentationIdentifier != "Axis" or len(representation.Items) != 1:
                 continue
-            points = _curve_points(representation.Items[0])
+            item = representation.Items[0]
+            points = _curve_points(item)  # a polyline: read at once, without the kernel
+            points = points * self.scale if points is not None else self._tessellated(item)
             if points is None or len(points) < 2:
-                return []
-            directions = np.diff(points, axis=0) @ T_B_E[:3, :3].T
-            directions[:, 2] = 0.0
-            norms = np.linalg.norm(directions, axis=1)
-            return list(directions[norms > 1e-9] / norms[norms > 1e-9, None])
-        return []
+                return None
+            return (points @ T_B_E[:3, :3].T + T_B_E[:3, 3])[:, :2]
+        return None
+
+    def _tessellated(self, curve) -> np.ndarray | None:
+        """The vertices in order (N x 3, metres) of a curve as the kernel tessellates it (its
+        linear deflection, 1 mm); None if it gives no single line."""
+        try:
+            shape = ifcopenshell.geom.create_shape(self.settings[False], curve)
+        except RuntimeError:  # not a curve the kernel reads: as if the wall had no axis
+            return None
+        segments = np.asarray(shape.verts, dtype=float).reshape(-1, 3)[np.asarray(shape.edges, dtype=int).reshape(-1, 2)]
+        line = shapely.line_merge(shapely.multilinestrings(shapely.linestrings(segments))) if len(segments) else None
+        return shapely.get_coordinates(line, include_z=True) if isinstance(line, shapely.LineString) else None
 
     def meshes_and_solids(self, elements, solids) -> tuple[dict[int, Mesh], dict[int, list[Mesh]]]:
         """`meshes(elements)`, and closed meshes in B of `solids` by entity id: built here,

@@ -16,6 +16,7 @@ class BimImportConfig(Section):
     axis_tol_deg: float = Field(1.0, gt=0, description="a vertical face of a wall is a side face when it is this close to parallel to the wall's axis")
     coplanar_angle_deg: float = Field(0.05, gt=0, description="triangles whose normals differ by less than this may share a face")
     coplanar_distance_m: float = Field(0.002, gt=0, description="triangles whose planes are closer than this may share a face")
+    curved_face_tol_m: float = Field(0.01, gt=0, description="a curved wall face is cut into planar facets, as few as stay this close to it")
     grid_m: float = Field(1e-5, gt=0, description="precision grid of the 2-D polygon operations on faces")
     opening_slice_depth_m: float = Field(0.001, gt=0, description="openings are cut out of a face where they cross the plane this far behind it")
     boundary_on_face_m: float = Field(0.02, gt=0, description="a space boundary lies on a wall face when all its points are this close to the face's plane")

@@ -246,7 +246,7 @@ def run(
 
     cfg = load_config(config_file)
     if spawn:  # (before the inputs are read and the run made, not after)
-        from bimgraph.viewer.rerun_viewer import check_viewer_can_open
+        from bimgraph.viewer.recording import check_viewer_can_open
 
         check_viewer_can_open()
     out = console()

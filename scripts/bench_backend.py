@@ -34,7 +34,8 @@ from bimgraph.config import BackendConfig, Config
 from bimgraph.errors import BimgraphError
 from bimgraph.sequence.format import load_sequence
 from bimgraph.viewer.follow import RerunListener
-from bimgraph.viewer.rerun_viewer import RerunViewer, open_recording
+from bimgraph.viewer.recording import open_recording
+from bimgraph.viewer.rerun_viewer import RerunViewer
 
 os.environ.setdefault("RERUN_ANALYTICS", "0")
 

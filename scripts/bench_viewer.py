@@ -30,7 +30,8 @@ from bimgraph.bim.planemap import PlaneMap  # noqa: E402
 from bimgraph.config import Config, load_config  # noqa: E402
 from bimgraph.sequence.format import Sequence, load_sequence  # noqa: E402
 from bimgraph.viewer.follow import RerunListener  # noqa: E402
-from bimgraph.viewer.rerun_viewer import RerunViewer, open_recording  # noqa: E402
+from bimgraph.viewer.recording import open_recording  # noqa: E402
+from bimgraph.viewer.rerun_viewer import RerunViewer  # noqa: E402
 from bimgraph.viewer.rrd import component_counts, verify  # noqa: E402
 
 

@@ -21,7 +21,8 @@ from bimgraph.geometry import rotation_angle_deg  # noqa: E402
 from bimgraph.viewer.drawing import angles_deg, project  # noqa: E402
 from bimgraph.viewer.follow import RerunListener, mark_deviations  # noqa: E402
 from bimgraph.viewer.meshes import face_mesh  # noqa: E402
-from bimgraph.viewer.rerun_viewer import RerunViewer, face_entity, open_recording  # noqa: E402
+from bimgraph.viewer.recording import open_recording  # noqa: E402
+from bimgraph.viewer.rerun_viewer import RerunViewer, face_entity  # noqa: E402
 from bimgraph.viewer.rrd import component_counts, row_counts, verify  # noqa: E402
 
 N_KEYFRAMES = 80

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import shapely
 
-from bimgraph.bim import faces as F
+from bimgraph.bim import curved, faces as F
 from bimgraph.bim.ifc_read import ModelReader, open_model
 from bimgraph.bim.planemap import BimFace, PlaneMap, Space
 from bimgraph.bim.rooms import Claim, Junctions, Rooms, boundary_claims, split_at, split_face
@@ -90,9 +90,9 @@ def _wall_faces(reader: ModelReader, walls, meshes, voids, solids, cfg, log) -> 
         found = F.vertical_faces(mesh.V, mesh.T, np.radians(cfg.vertical_tol_deg), angle_tol,
                                  cfg.coplanar_distance_m, cfg.grid_m, along if straight else None, axis_tol)
         if not straight:
-            found = F.merge_facets(found, cfg.curved_face_tol_m, cfg.coplanar_distance_m, cfg.grid_m)
+            found = curved.merge_facets(found, cfg.curved_face_tol_m, cfg.coplanar_distance_m, cfg.grid_m)
             line = shapely.LineString(axis)
-            found = [face for face in found if F.runs_along(face, line, axis_tol, cfg.grid_m)]
+            found = [face for face in found if curved.runs_along(face, line, axis_tol, cfg.grid_m)]
         sides = [(face, F.depth_behind(face, found, angle_tol)) for face in found]
         per_wall[wall.id()] = (wall, sides)
     for opening in (o for wall in walls for o in voids[wall.id()] if o.id() not in solids):

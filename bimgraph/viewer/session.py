@@ -14,7 +14,8 @@ from bimgraph.errors import FormatError, InputError
 from bimgraph.geometry import inverse
 from bimgraph.sequence.format import SequenceMeta, load_sequence
 from bimgraph.viewer.follow import mark_deviations, read_depth
-from bimgraph.viewer.rerun_viewer import RerunViewer, open_recording
+from bimgraph.viewer.recording import open_recording
+from bimgraph.viewer.rerun_viewer import RerunViewer
 
 # Stamps are written with 6 decimals in TUM files.
 _STAMP_TOL = 1e-5

@@ -261,7 +261,8 @@ def run(
         with progress_bar(out, TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()) as bar:
             task = bar.add_task(f"bimgraph run ({mode})", total=None)
             run_backend(sequence, output, mode=mode, bim=bim_model, config=cfg, seeds=seeds, oracle=oracle,
-                        listener=listener, progress=lambda done, total: bar.update(task, completed=done), inputs=inputs)
+                        listener=listener, progress=lambda done, total: bar.update(task, completed=done), inputs=inputs,
+                        stage=lambda text: bar.update(task, description=f"bimgraph run ({mode}): {text}"))
     finally:
         if viewer is not None:  # an interrupted run still leaves a complete recording
             from bimgraph.viewer.session import finish

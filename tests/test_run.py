@@ -9,7 +9,7 @@ from typer.testing import CliRunner
 from cli_errors import assert_one_line_error
 
 from bimgraph.backend.online import Backend
-from bimgraph.backend.pipeline import initial_alignment, load_model
+from bimgraph.backend.pipeline import initial_alignment, load_model, run as run_pipeline
 from bimgraph.backend.synthetic import make_scene
 from bimgraph.bim.planemap import save_plane_map
 from bimgraph.cli import app
@@ -82,6 +82,20 @@ def test_run_writes_every_output(world, tmp_path, mode):
                  f"{summary['matched_landmarks']} matched to {summary['matched_faces']} BIM faces",
                  f"{sum(1 for f in json.loads((tmp_path / 'deviations.json').read_text())['faces'] if f['status'] == 'within_tolerance')} within tolerance"):
         assert line in printed, (line, result.output)
+
+
+def test_the_step_after_the_last_keyframe_is_announced(world, tmp_path):
+    """An online run measures the walls after its last keyframe, for as long as offline rounds
+    take: the caller hears of it (the CLI's progress bar says so) before it starts."""
+    _, root = world
+    heard = []
+
+    def stage(what):
+        heard.append((what, (tmp_path / "deviations.json").exists()))
+
+    run_pipeline(root, tmp_path, mode="online", progress=lambda done, total: heard.append(done), stage=stage)
+    assert heard == [*range(1, N + 1), ("measuring the walls", False)]
+    assert (tmp_path / "deviations.json").exists()
 
 
 def test_crash_mid_run_leaves_valid_outputs(world, tmp_path, monkeypatch):

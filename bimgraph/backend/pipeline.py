@@ -134,11 +134,13 @@ def clear_previous_run(out_dir: Path) -> None:
 @singular_as_error()
 def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = None, config: Config | None = None,
         seeds: list[tuple[int, int, str]] = (), oracle: bool = False, listener: Listener | None = None,
-        progress: Callable[[int, int | None], None] | None = None, inputs: Inputs | None = None) -> Results | None:
+        progress: Callable[[int, int | None], None] | None = None, inputs: Inputs | None = None,
+        stage: Callable[[str], None] | None = None) -> Results | None:
     """Run the backend on a sequence folder and write the outputs to `out_dir`. The sequence
     is read and validated whole first; online runs then process it keyframe by keyframe,
-    writing as they go, and return None. `inputs`,
-    if given, are those of `load_inputs(seq_dir, bim, config)`."""
+    writing as they go, and return None. `inputs`, if given, are those of
+    `load_inputs(seq_dir, bim, config)`; `progress(keyframes done, total)` hears each online
+    keyframe and `stage(what)` the long step after the last one."""
     cfg = config or Config()
     seq_dir = Path(seq_dir)
     if mode not in ("online", "offline"):
@@ -181,6 +183,8 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
         raise
     writer.snapshot(backend, finished=True, timings={"total_s": time.perf_counter() - start})
     writer.close()
+    if stage is not None:  # (the refinement takes about as long as offline rounds: seconds to a minute)
+        stage("measuring the walls")
     if cfg.deviations.online_refine:
         refined = OfflineEstimator(plane_map, cfg.backend, initial, oracle=truth, causal=backend).refine(sequence.keyframes)
         planes, T_B_S, T_B_C = refined.observed_planes, refined.T_B_S, refined.T_B_C

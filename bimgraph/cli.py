@@ -151,9 +151,11 @@ def bim(
     from bimgraph.config import load_config
 
     cfg = load_config(config_file)
-    plane_map, report = import_ifc(model, cfg.bim, log=console().print)
+    out = console()
+    # (a warning is one line, however long: a log may be grepped by GlobalId)
+    plane_map, report = import_ifc(model, cfg.bim, log=lambda text: out.print(text, soft_wrap=True, highlight=False, markup=False))
     save_plane_map(plane_map, output)
-    console().print(report)
+    out.print(report)
 
 
 @app.command()
@@ -322,7 +324,7 @@ def evaluate(
 
     cfg = load_config(config_file)
     evaluation = Evaluation(gt, cfg)
-    # every run's files read and validated before any metrics.json is written
+    # every run read, validated and measured before any metrics.json is written
     estimates = {str(d): load_estimate(d) for d in outdirs}
     timings = {str(d): run_timings(d) for d in outdirs}
     rows = []
@@ -331,8 +333,8 @@ def evaluate(
         methods = ["manual", "global", "local"]
         for method in methods:
             rows.append(summary_row(method, evaluation.metrics(evaluation.baseline(method, associations))))
-    for out_dir, estimate in estimates.items():
-        metrics = evaluation.metrics(estimate)
+    measured = {out_dir: evaluation.metrics(estimate, out_dir) for out_dir, estimate in estimates.items()}
+    for out_dir, metrics in measured.items():
         write_metrics(out_dir, metrics)
         rows.append({**summary_row(Path(out_dir).name, metrics), **timings[out_dir]})
     rows.append(summary_row("truth", evaluation.metrics(evaluation.truth())))

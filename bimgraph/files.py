@@ -55,7 +55,8 @@ def ensure_folder(path: Path, target: Path | None = None) -> Path:
     target = path if target is None else target
     blocking = next((p for p in (path, *path.parents) if p.exists() and not p.is_dir()), None)
     if blocking is not None:
-        raise InputError(f"{target}: {blocking} is a file, not a folder")
+        raise InputError(f"{target}: is a file, not a folder" if blocking == Path(target)
+                         else f"{target}: {blocking} is a file, not a folder")
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as err:

@@ -17,18 +17,19 @@ from bimgraph.backend.graph import E, L, X, BatchSolver, bim_keys, joint_covaria
 from bimgraph.backend.marginals import JointMarginals
 from bimgraph.backend.offline import OfflineEstimator
 from bimgraph.backend.online import Backend, observations_of
+from bimgraph.backend.pipeline import run as run_pipeline
 from bimgraph.backend.robust_alignment import reduced
 from bimgraph.backend.synthetic import make_scene
-from bimgraph.bim.planemap import PlaneMap
-from bimgraph.config import BackendConfig, DeviationConfig
+from bimgraph.bim.planemap import PlaneMap, save_plane_map
+from bimgraph.config import BackendConfig, Config, DeviationConfig
 from bimgraph.deviations.assess import assess
 from bimgraph.deviations.bcf import BCF_FILE, read_bcf_topics
 from bimgraph.deviations.graph import observed_planes_isam2
 from bimgraph.deviations.outputs import write_deviation_outputs
 from bimgraph.deviations.report import CSV_FILE, JSON_FILE, load_deviations, read_csv_rows
 from bimgraph.evaluation.metrics import ate, extrinsic_error
-from bimgraph.geometry import inverse
-from bimgraph.sequence.format import Camera
+from bimgraph.geometry import inverse, pose_to_tum
+from bimgraph.sequence.format import Camera, InitialAlignment, Sequence, SequenceMeta, save_sequence
 
 MOVED = {"r00E": 0.08}  # the wall was built 8 cm into the room; the walk starts facing it
 MOVED_LATE = {"r10E": 0.08}  # the same in the second room, first seen at keyframe 80 of 160
@@ -161,24 +162,27 @@ def test_offline_gnc_measures_the_moved_wall_against_the_others(offline_runs, tm
             assert abs(f.offset_m) < min(4 * f.offset_sigma_m + 0.005, 0.015), f
 
 
-def test_an_online_run_is_measured_where_the_offline_rounds_take_its_graph(tmp_path):
+@pytest.mark.parametrize("refine", [True, False])
+def test_an_online_run_writes_the_refined_report(tmp_path, refine):
     """Online, the kernel follows the moved wall the walk sees first, and read at the online
-    graph's own solution three sound faces came out 7-8 cm off at 6 sigma. The report of an
-    online run is measured where the offline rounds take its graph (`OfflineEstimator(causal=)`,
-    `deviations.online_refine`): the moved wall alone deviates, measured against the others."""
+    graph's own solution (`deviations.online_refine: false`) three sound faces come out 7-8 cm
+    off at 6 sigma. By default an online run's report is measured where the offline rounds
+    take its graph (`OfflineEstimator(causal=)`): the moved wall alone deviates, measured
+    against the others."""
     scene = make_scene(160, rooms=(2, 1), seed=1, drift_rot_deg=0.01, drift_trans_m=0.001)
-    plan = moved_plan(scene.plane_map)
-    cfg = BackendConfig()
-    backend = Backend(plan, cfg, scene.initial, covariance=False)
-    for kf in scene.keyframes:
-        backend.process(kf)
-    res = OfflineEstimator(plan, cfg, scene.initial, causal=backend).refine(scene.keyframes)
-    camera = Camera(width=640, height=480, fx=525.0, fy=525.0, cx=319.5, cy=239.5)
-    data = write_deviation_outputs(tmp_path, plan, res.observed_planes, res.T_B_S, res.T_B_C, camera, DeviationConfig())
-    assert [f.face_id for f in data.faces if f.status == "deviating"] == ["r00E"]
-    for f in data.faces:
-        if f.offset_m is not None:
-            assert abs(f.offset_m - MOVED.get(f.face_id, 0.0)) < min(4 * f.offset_sigma_m + 0.005, 0.015), f
+    meta = SequenceMeta(name="moved", model="planes.json", sensor="planes",
+                        initial_alignment=InitialAlignment(T_B_S=tuple(pose_to_tum(scene.initial.T_B_S))))
+    save_sequence(Sequence(root=tmp_path / "seq", meta=meta, keyframes=scene.keyframes))
+    save_plane_map(moved_plan(scene.plane_map), tmp_path / "seq" / "planes.json")
+    cfg = Config()
+    cfg.deviations.online_refine = refine
+    run_pipeline(tmp_path / "seq", tmp_path / "out", mode="online", config=cfg)
+    faces = load_deviations(tmp_path / "out" / JSON_FILE).faces
+    assert ([f.face_id for f in faces if f.status == "deviating"] == ["r00E"]) == refine, faces
+    if refine:
+        for f in faces:
+            if f.offset_m is not None:
+                assert abs(f.offset_m - MOVED.get(f.face_id, 0.0)) < min(4 * f.offset_sigma_m + 0.005, 0.015), f
 
 
 def tilted_plan(plane_map: PlaneMap, face_id: str, deg: float) -> PlaneMap:

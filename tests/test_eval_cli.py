@@ -95,3 +95,17 @@ def test_malformed_ground_truth_is_one_line_exit_3(finished_run, tmp_path):
     (copy / "groundtruth" / "observations.jsonl").write_text("\n".join([lines[0], '{"index": 1, "planes": 5}', *lines[2:]]) + "\n")
     result = CliRunner().invoke(app, ["eval", str(out), "--gt", str(copy), "--no-baselines"])
     assert_one_line_error(result, 3, "observations.jsonl: line 2: planes: Input should be a valid list")
+
+
+def test_a_run_of_another_length_is_named_and_no_metrics_are_written(finished_run, tmp_path):
+    """Two runs, the second cut short (an interrupted online run): the first run's
+    metrics.json was written before the second failed, and the error named no run."""
+    seq, out = finished_run
+    good, short = tmp_path / "good", tmp_path / "short"
+    shutil.copytree(out, good)
+    shutil.copytree(out, short)
+    lines = (short / "trajectory_bim.tum").read_text().splitlines()
+    (short / "trajectory_bim.tum").write_text("\n".join(lines[:-5]) + "\n")
+    result = CliRunner().invoke(app, ["eval", str(good), str(short), "--gt", str(seq), "--no-baselines"])
+    assert_one_line_error(result, 3, f"{short} has 25 poses for 30 keyframes")
+    assert not (good / "metrics.json").exists()

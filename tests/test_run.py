@@ -8,6 +8,7 @@ from typer.testing import CliRunner
 
 from cli_errors import assert_one_line_error
 
+from bimgraph.backend.offline import OfflineEstimator
 from bimgraph.backend.online import Backend
 from bimgraph.backend.pipeline import initial_alignment, load_model, run as run_pipeline
 from bimgraph.backend.synthetic import make_scene
@@ -96,6 +97,29 @@ def test_the_step_after_the_last_keyframe_is_announced(world, tmp_path):
     run_pipeline(root, tmp_path, mode="online", progress=lambda done, total: heard.append(done), stage=stage)
     assert heard == [*range(1, N + 1), ("measuring the walls", False)]
     assert (tmp_path / "deviations.json").exists()
+
+
+def test_a_run_stopped_while_measuring_the_walls_is_not_finished(world, tmp_path, monkeypatch):
+    """Stopped after its last keyframe, in the deviation step (Ctrl-C here), an online run has
+    every other output written and says it did not finish; it leaves no report, not even part
+    of one."""
+    _, root = world
+
+    def interrupted(self, keyframes, timings=None):
+        (tmp_path / "deviations.json").write_text("{")  # as if stopped while writing it
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(OfflineEstimator, "refine", interrupted)
+    result = run(root, "-o", tmp_path)
+    assert result.exit_code == 130
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["finished"] is False and summary["keyframes"] == N
+    assert len(read_tum(tmp_path / "trajectory_bim.tum")[0]) == N
+    assert not any((tmp_path / name).exists() for name in ("deviations.json", "deviations.csv", "deviations.bcf"))
+    monkeypatch.undo()
+    assert run(root, "-o", tmp_path).exit_code == 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["finished"] is True and summary["timings_s"]["total_s"] > summary["timings_s"]["deviation_report_s"] > 0
 
 
 def test_crash_mid_run_leaves_valid_outputs(world, tmp_path, monkeypatch):

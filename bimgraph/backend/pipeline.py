@@ -127,7 +127,11 @@ def clear_previous_run(out_dir: Path) -> None:
     evaluation), before this run writes there: a run that stops midway writes none of them,
     and the earlier run's would stand beside it as if they were its own. (`out_dir` is a
     folder: `run` made sure of it.)"""
-    for name in _END_OF_RUN_FILES:
+    _remove(out_dir, _END_OF_RUN_FILES)
+
+
+def _remove(out_dir: Path, names) -> None:
+    for name in names:
         (Path(out_dir) / name).unlink(missing_ok=True)
 
 
@@ -181,16 +185,31 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
         writer.snapshot(backend, finished=False, timings={"total_s": time.perf_counter() - start})
         writer.close()
         raise
-    writer.snapshot(backend, finished=True, timings={"total_s": time.perf_counter() - start})
+    # the run's outputs as the last keyframe left them, before the deviation step (which
+    # changes the backend's landmarks); `finished` once the report is written too
+    writer.snapshot(backend, finished=False, timings={"total_s": time.perf_counter() - start})
     writer.close()
-    if stage is not None:  # (the refinement takes about as long as offline rounds: seconds to a minute)
+    if stage is not None:  # (about as long as offline rounds: seconds to a minute)
         stage("measuring the walls")
-    if cfg.deviations.online_refine:
-        refined = OfflineEstimator(plane_map, cfg.backend, initial, oracle=truth, causal=backend).refine(sequence.keyframes)
-        planes, T_B_S, T_B_C = refined.observed_planes, refined.T_B_S, refined.T_B_C
-    else:
-        planes, T_S_B = observed_planes_isam2(backend.graph, backend.landmarks.current(),
-                                              BatchSolver(cfg.backend.offline.max_iterations, cfg.backend.offline.relative_error_tol))
-        T_B_S, T_B_C = inverse(T_S_B), writer.T_B_C
-    write_deviation_outputs(out_dir, plane_map, planes, T_B_S, T_B_C, meta.camera, cfg.deviations)
+    report_start = time.perf_counter()
+    try:
+        planes, T_B_S, T_B_C = _online_deviations(backend, sequence.keyframes, plane_map, cfg, initial, truth, writer.T_B_C)
+        write_deviation_outputs(out_dir, plane_map, planes, T_B_S, T_B_C, meta.camera, cfg.deviations)
+    except BaseException:
+        _remove(out_dir, DEVIATION_FILES)  # (a report written in part is no report)
+        raise
+    writer.finish({"deviation_report_s": time.perf_counter() - report_start, "total_s": time.perf_counter() - start})
     return None
+
+
+def _online_deviations(backend: Backend, keyframes: list[Keyframe], plane_map: PlaneMap, cfg: Config, initial: Alignment,
+                       truth, T_B_C_causal: list[np.ndarray]):
+    """What the deviation report of an online run is measured from: the landmarks (as
+    `ObservedPlane`s), `T_B_S` and `T_B_C`. With `deviations.online_refine`, where the offline
+    rounds take the backend's graph (they change its landmarks); else at its own solution."""
+    if cfg.deviations.online_refine:
+        refined = OfflineEstimator(plane_map, cfg.backend, initial, oracle=truth, causal=backend).refine(keyframes)
+        return refined.observed_planes, refined.T_B_S, refined.T_B_C
+    planes, T_S_B = observed_planes_isam2(backend.graph, backend.landmarks.current(),
+                                          BatchSolver(cfg.backend.offline.max_iterations, cfg.backend.offline.relative_error_tol))
+    return planes, inverse(T_S_B), T_B_C_causal

@@ -243,6 +243,7 @@ class OnlineWriter:
         self.latencies: list[float] = []
         self.T_B_C: list[np.ndarray] = []
         self.last: KeyframeResult | None = None
+        self._summary: dict | None = None  # as the last snapshot wrote it
 
     def keyframe(self, result: KeyframeResult, backend) -> None:
         self.bim.append(result.stamp, result.T_B_C)
@@ -262,9 +263,18 @@ class OnlineWriter:
                                                           self.last.index))
         write_json(self.out / ASSOCIATIONS, associations_record(landmarks))
         write_json(self.out / LANDMARKS, landmarks_record(landmarks, self.last.T_B_S))
-        write_json(self.out / SUMMARY, summary_record("online", timings or {}, self.latencies, len(self.latencies),
-                                                      landmarks, finished, inputs=self.inputs,
-                                                      frontend_drift=backend.odometry.summary() if backend.drift_every else None))
+        self._summary = summary_record("online", timings or {}, self.latencies, len(self.latencies), landmarks, finished,
+                                       inputs=self.inputs,
+                                       frontend_drift=backend.odometry.summary() if backend.drift_every else None)
+        write_json(self.out / SUMMARY, self._summary)
+
+    def finish(self, timings: dict) -> None:
+        """Mark the run, as its last snapshot wrote it, finished, with these timings added."""
+        if self._summary is None:
+            return
+        self._summary = {**self._summary, "finished": True,
+                         "timings_s": {**self._summary["timings_s"], **{k: round(v, 6) for k, v in timings.items()}}}
+        write_json(self.out / SUMMARY, self._summary)
 
     def _covariance(self, backend) -> np.ndarray:
         """The last keyframe's extrinsic covariance: its result's or, where the backend skipped

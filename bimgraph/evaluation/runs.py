@@ -47,9 +47,9 @@ class Evaluation:
         self.plane_map = load_model(model_path(seq_dir, self.sequence.meta, None), cfg)
         self.manual = initial_alignment(self.sequence.meta, cfg)
 
-    def metrics(self, estimate: Estimate) -> dict:
+    def metrics(self, estimate: Estimate, name: str = "the run") -> dict:
         if len(estimate.T_B_C) != len(self.sequence.keyframes):
-            raise FormatError(f"the run has {len(estimate.T_B_C)} poses for {len(self.sequence.keyframes)} keyframes "
+            raise FormatError(f"{name} has {len(estimate.T_B_C)} poses for {len(self.sequence.keyframes)} keyframes "
                               "(an unfinished online run?)")
         return evaluate(estimate, self.sequence.keyframes, self.gt, self.plane_map)
 

@@ -35,16 +35,23 @@ def _error(message: str, exit_code: int) -> int:
 
 
 @contextlib.contextmanager
-def _one_line_usage_errors():
+def _one_line_usage_errors(group_ctx=None):
     """A command line the parser refuses (unknown option or command, missing argument, a value
     of the wrong type) as one line on stderr, exit code 2, instead of typer's boxed panel.
-    `bimgraph` alone still prints the help (click raises that as a usage error too)."""
+    `bimgraph` alone still prints the help (click raises that as a usage error too). Some
+    errors come without their context (an option missing its value): the command is then the
+    subcommand `group_ctx` was invoking."""
     try:
         yield
     except UsageError as err:
         if type(err).__name__ == "NoArgsIsHelpError":  # (by name: click before 8.2 has no such class)
             raise
-        command = err.ctx.command_path if err.ctx is not None else "bimgraph"
+        if err.ctx is not None:
+            command = err.ctx.command_path
+        elif group_ctx is not None and group_ctx.invoked_subcommand:
+            command = f"{group_ctx.command_path} {group_ctx.invoked_subcommand}"
+        else:
+            command = "bimgraph"
         message = " ".join(err.format_message().split()).rstrip(".")
         text = f"{command}: {message[:1].lower()}{message[1:]} (see {command} --help)"
         raise typer.Exit(_error(text, err.exit_code)) from None
@@ -59,7 +66,7 @@ class _Commands(TyperGroup):
             return super().make_context(*args, **kwargs)
 
     def invoke(self, ctx):
-        with _one_line_usage_errors():
+        with _one_line_usage_errors(ctx):
             return super().invoke(ctx)
 
 

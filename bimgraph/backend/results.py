@@ -189,6 +189,10 @@ def landmarks_record(landmarks: list[Landmark], T_B_S: np.ndarray) -> dict:
     return {"frame": "plane_S in S, plane_B in B with the final T_B_S, plane_A in the anchor keyframe", "landmarks": out}
 
 
+def _seconds(timings: dict) -> dict:
+    return {k: round(v, 6) for k, v in timings.items()}
+
+
 def summary_record(mode: str, timings: dict, latencies_s: list[float], n_keyframes: int, landmarks: list[Landmark],
                    finished: bool, rounds: int = 0, inputs: dict | None = None,
                    bim_tolerance: tuple[float, float] | None = None, frontend_drift: dict | None = None,
@@ -198,7 +202,7 @@ def summary_record(mode: str, timings: dict, latencies_s: list[float], n_keyfram
                "matched_faces": len({lm.face for lm in landmarks if lm.face is not None}),
                # matches the alignment does not keep whole: walls found off plan (offline GNC)
                "off_plan_landmarks": sum(lm.face is not None and lm.alignment != KEPT for lm in landmarks),
-               "timings_s": {k: round(v, 6) for k, v in timings.items()}}
+               "timings_s": _seconds(timings)}
     if latencies_s:
         ms = np.asarray(latencies_s) * 1e3
         summary["latency_ms"] = {"median": float(np.median(ms)), "p95": float(np.percentile(ms, 95)), "max": float(ms.max())}
@@ -273,7 +277,7 @@ class OnlineWriter:
         if self._summary is None:
             return
         self._summary = {**self._summary, "finished": True,
-                         "timings_s": {**self._summary["timings_s"], **{k: round(v, 6) for k, v in timings.items()}}}
+                         "timings_s": {**self._summary["timings_s"], **_seconds(timings)}}
         write_json(self.out / SUMMARY, self._summary)
 
     def _covariance(self, backend) -> np.ndarray:

@@ -179,24 +179,35 @@ class ModelReader:
         return shapely.get_coordinates(line, include_z=True) if isinstance(line, shapely.LineString) else None
 
     def meshes_and_solids(self, elements, solids) -> tuple[dict[int, Mesh], dict[int, list[Mesh]]]:
-        """`meshes(elements)`, and closed meshes in B of `solids` by entity id: built here,
-        exactly and cheaply, for bodies that are extrusions of polygons or faceted breps
-        (openings and rooms nearly always are), by the geometry iterator for the others, in
-        the same run as `elements` (setting the iterator up costs as much as a dozen walls).
-        Solids without geometry are absent; those built here come first, each part in the
-        order of `solids`."""
+        """`meshes(elements)`, and closed meshes in B of `solids` by entity id (a list of parts
+        each). Bodies that are extrusions of polygons or faceted breps (nearly all openings
+        and rooms, most walls) are built here, exactly and at a fraction of the geometry
+        iterator's cost; the others go through the iterator in one run (setting it up costs
+        as much as a dozen walls). Elements without geometry are absent; solids built here
+        come first, each part in the order of `solids`."""
         built, others = {}, []
-        for element in solids:
-            items = schema.body_items(element)
-            prisms = [schema.prism(item) if item.is_a("IfcExtrudedAreaSolid") else schema.brep(item) for item in items]
-            if not items or any(p is None for p in prisms):
+        for element in [*elements, *solids]:
+            parts = self._built(element)
+            if parts is None:
                 others.append(element)
-                continue
-            T_B_E = self.T_B_W @ self.placement(element)
-            built[element.id()] = [Mesh((V * self.scale) @ T_B_E[:3, :3].T + T_B_E[:3, 3], T) for V, T in prisms]
-        meshes = self.meshes([*elements, *others])
-        built.update({e.id(): [meshes.pop(e.id())] for e in others if e.id() in meshes})
+            else:
+                built[element.id()] = parts
+        meshes = self.meshes(others)
+        built.update({e.id(): [meshes.pop(e.id())] for e in solids if e.id() in meshes})
+        for element in elements:
+            if element.id() in built:
+                meshes[element.id()] = _joined(built.pop(element.id()), self.T_B_W @ self.placement(element))
         return meshes, built
+
+    def _built(self, element) -> list[Mesh] | None:
+        """The parts of an element's body in B, built from the schema; None where the body is
+        not all extrusions of polygons and faceted breps."""
+        items = schema.body_items(element)
+        prisms = [schema.prism(item) if item.is_a("IfcExtrudedAreaSolid") else schema.brep(item) for item in items]
+        if not items or any(p is None for p in prisms):
+            return None
+        T_B_E = self.T_B_W @ self.placement(element)
+        return [Mesh((V * self.scale) @ T_B_E[:3, :3].T + T_B_E[:3, 3], T) for V, T in prisms]
 
     def boundaries(self, walls) -> list[Boundary]:
         """Surface space boundaries on the given walls, as point loops in B."""
@@ -221,6 +232,13 @@ class ModelReader:
             points = points * self.scale
             out.append(Boundary(guid, wall_guids[wall.id()], points @ T_B_S[:3, :3].T + T_B_S[:3, 3]))
         return out
+
+
+def _joined(parts: list[Mesh], T_B_E: np.ndarray) -> Mesh:
+    """The parts of one body as one mesh (the layers of a wall touch: its faces are found on
+    them together), placed at `T_B_E`."""
+    starts = np.cumsum([0] + [len(part.V) for part in parts[:-1]])
+    return Mesh(np.vstack([part.V for part in parts]), np.vstack([part.T + start for part, start in zip(parts, starts)]), T_B_E)
 
 
 def available_cores() -> int:

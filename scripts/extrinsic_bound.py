@@ -1,0 +1,176 @@
+#!/usr/bin/env python
+"""How well could any estimator place T_B_S on a simulated walk? A Cramer-Rao bound.
+
+The extrinsic is the frame S of the front-end's first camera in B, so it is placed by the
+planes seen around the first keyframes and by the odometry linking them to the rest of the
+walk. This script builds, at the truth, the Fisher information of the simulator's own model
+of a walk (`bimgraph/sim`), made easier for the estimator in every respect it can be:
+- the front-end (`bimgraph/sim/frontend.py`): each reported pose is the drifting pose times
+  white noise (`noise_m`, `noise_deg`); the drifting pose is the true one moved by a random
+  walk (`random_walk_m`, and `random_walk_deg` about up, per square-root metre) and by
+  constant drift rates per metre walked (heading, and position along a horizontal direction),
+  which are unknown (three parameters, `--known-drift` gives them);
+- the planes: every detection is drawn with exactly the covariance it reports. The faces built
+  as planned, the floor and the ceiling are known exactly, and known to be as planned (which
+  bimgraph must find out); the faces built off plan and the clutter are planes of unknown
+  position (their observations still tie the poses together).
+The variables: the true poses T_B_C (X(k)), the drifted extrinsic of each keyframe
+T_B_S_k = T_B_C * T_S_C^-1 (E(k)), which the random walk moves from T_B_S = E(0), and the
+planes (L(j)). The marginal covariance of E(0) is a lower bound on the error covariance of
+any unbiased estimate of T_B_S from the sequence. Printed per sequence: the bound's sigma per
+horizontal axis, the RMS horizontal error sqrt(sx^2 + sy^2), P(horizontal error <= LIMIT)
+for an estimator that reached the bound (a Gaussian error), and the sigma of the yaw.
+
+    python scripts/extrinsic_bound.py SEQ [SEQ ...] [--limit-cm 1 2] [--tolerance DEG MM] [--known-drift]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import E, L, X
+from rich.console import Console
+from rich.table import Table
+
+from bimgraph.config import FrontEndConfig
+from bimgraph.errors import BimgraphError
+from bimgraph.geometry import inverse, plane_from_frame
+from bimgraph.sequence.format import load_sequence
+from bimgraph.sequence.groundtruth import load_groundtruth
+from factors import face_tolerance_cov, plane_prior_factor
+
+UP = np.array([0.0, 0.0, 1.0])
+KNOWN = 1e-6  # sigma of what the estimator is given exactly (radians, metres)
+DRIFT = gtsam.symbol("d", 0)  # the front-end's drift rates, unless given
+
+
+def known_planes(truth, tolerance: tuple[float, float]) -> dict[str, gtsam.noiseModel.Base]:
+    """The noise of what the estimator is given of each face built as planned (its tilt and
+    its offset at its centre within `tolerance`, radians and metres, or exactly where zero),
+    and of the floor and ceiling (exactly), by element."""
+    exact = gtsam.noiseModel.Isotropic.Sigma(3, KNOWN)
+    known = {"floor": exact, "ceiling": exact}
+    centres = {e["name"]: np.mean(e["polygon"], axis=0) for e in truth.as_built["elements"]}
+    for face in truth.as_built["faces"]:
+        if not face["built"] or not np.allclose(face["plane_planned"], face["plane_as_built"], atol=1e-9):
+            continue
+        basis = gtsam.Unit3(np.asarray(face["plane_planned"][:3], dtype=float)).basis()
+        cov = face_tolerance_cov(basis, centres[face["face_id"]], *tolerance)
+        known[face["face_id"]] = gaussian(cov + np.eye(3) * KNOWN**2) if any(tolerance) else exact
+    return known
+
+
+def gaussian(cov: np.ndarray) -> gtsam.noiseModel.Gaussian:
+    return gtsam.noiseModel.Gaussian.Covariance(cov)
+
+
+def fisher_graph(sequence, truth, frontend, tolerance: tuple[float, float], known_drift: bool) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    """The factors of the easier problem, at the truth (their residuals zero)."""
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    white = np.diag(np.r_[np.full(3, np.radians(frontend.noise_deg)), np.full(3, frontend.noise_m)] ** 2 + KNOWN**2)
+    rw_rot, rw_m = np.radians(frontend.random_walk_deg), frontend.random_walk_m
+    known = known_planes(truth, tolerance)
+    planes = {}
+    if not known_drift:
+        values.insert(DRIFT, np.zeros(3))
+    for k, kf in enumerate(sequence.keyframes):
+        T_B_C, T_S_C = truth.T_B_C[k], kf.pose
+        T_B_Sk = T_B_C @ inverse(T_S_C)
+        values.insert(X(k), gtsam.Pose3(T_B_C))
+        values.insert(E(k), gtsam.Pose3(T_B_Sk))
+        # The reported pose: the drifted one times white noise (none on the first, which is S).
+        graph.add(gtsam.BetweenFactorPose3(E(k), X(k), gtsam.Pose3(T_S_C), gaussian(white if k else np.eye(6) * KNOWN**2)))
+        if k == 0:  # S is level, as B is
+            graph.add(gtsam.AttitudeFactorPose3(E(0), gtsam.Unit3(UP), gtsam.noiseModel.Isotropic.Sigma(2, KNOWN), gtsam.Unit3(UP)))
+        else:
+            # A step's walk, in the drifting camera's frame (yaw about up, position isotropic),
+            # moves the drifted extrinsic by its adjoint.
+            length = float(np.linalg.norm(T_B_C[:3, 3] - truth.T_B_C[k - 1][:3, 3]))
+            up_C = T_S_C[:3, :3].T @ UP
+            walk = np.zeros((6, 6))
+            walk[:3, :3] = rw_rot**2 * length * np.outer(up_C, up_C)
+            walk[3:, 3:] = rw_m**2 * length * np.eye(3)
+            Ad = gtsam.Pose3(T_S_C).AdjointMap()
+            step = values.atPose3(E(k - 1)).between(gtsam.Pose3(T_B_Sk))
+            noise = gaussian(Ad @ walk @ Ad.T + np.eye(6) * KNOWN**2)
+            if known_drift:
+                graph.add(gtsam.BetweenFactorPose3(E(k - 1), E(k), step, noise))
+            else:
+                # The drift rates (heading per metre about up; position per metre, horizontal in
+                # S) move the drifted extrinsic as the walk does: the between factor's Jacobians
+                # at its measurement, and the rates' through the same adjoint.
+                per_rate = np.zeros((6, 3))
+                per_rate[:3, 0] = length * up_C
+                per_rate[3:, 1:] = length * T_S_C[:3, :3].T[:, :2]
+                R = noise.R()  # whitened here: a JacobianFactor takes only a diagonal noise model
+                linear = gtsam.JacobianFactor(E(k - 1), -R @ step.inverse().AdjointMap(), E(k), R,
+                                              DRIFT, -R @ Ad @ per_rate, np.zeros(6), gtsam.noiseModel.Unit.Create(6))
+                point = gtsam.Values()
+                point.insert(E(k - 1), values.atPose3(E(k - 1)))
+                point.insert(E(k), gtsam.Pose3(T_B_Sk))
+                point.insert(DRIFT, np.zeros(3))
+                graph.add(gtsam.LinearContainerFactor(linear, point))
+        for observation, plane_truth in zip(kf.planes, truth.observations[k], strict=True):
+            plane_C = np.asarray(plane_truth["plane_C"], dtype=float)
+            element = plane_truth["element"]
+            if element not in planes:
+                planes[element] = L(len(planes))
+                plane_B = plane_from_frame(plane_C, T_B_C)
+                values.insert(planes[element], gtsam.OrientedPlane3(plane_B / np.linalg.norm(plane_B[:3])))
+                if element in known:
+                    graph.add(plane_prior_factor(plane_B, known[element], planes[element]))
+            graph.add(gtsam.OrientedPlane3Factor(plane_C / np.linalg.norm(plane_C[:3]), gaussian(np.asarray(observation.cov)),
+                                                 X(k), planes[element]))
+    return graph, values
+
+
+def bound(root: Path, tolerance: tuple[float, float], known_drift: bool) -> dict:
+    """The bound's covariance of T_B_S's horizontal position (m, in B) and its yaw sigma (deg)."""
+    sequence, truth = load_sequence(root), load_groundtruth(root)
+    if not (sequence.meta.simulated or {}).get("options", {}).get("frontend"):
+        raise BimgraphError(f"{root}: not a simulated sequence (sequence.json has no simulated.options.frontend)")
+    frontend = FrontEndConfig(**sequence.meta.simulated["options"]["frontend"])
+    graph, values = fisher_graph(sequence, truth, frontend, tolerance, known_drift)
+    cov = gtsam.Marginals(graph, values).marginalCovariance(E(0))
+    R = truth.T_B_S[:3, :3]  # Pose3's tangent is in the body frame: rotate into B
+    cov_t = R @ cov[3:, 3:] @ R.T
+    cov_r = R @ cov[:3, :3] @ R.T
+    return {"cov_xy": cov_t[:2, :2], "yaw_deg": float(np.degrees(np.sqrt(cov_r[2, 2])))}
+
+
+def p_within(cov_xy: np.ndarray, limit: float, samples: int = 200_000) -> float:
+    """P(|e| <= limit) for e ~ N(0, cov_xy), by sampling (seeded)."""
+    e = np.random.default_rng(0).multivariate_normal(np.zeros(2), cov_xy, samples)
+    return float((np.linalg.norm(e, axis=1) <= limit).mean())
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("sequences", nargs="+", type=Path)
+    parser.add_argument("--limit-cm", type=float, nargs="+", default=[1.0, 2.0])
+    parser.add_argument("--tolerance", type=float, nargs=2, default=[0.0, 0.0], metavar=("DEG", "MM"),
+                        help="give the faces built as planned only to this tilt and offset (at their centre), "
+                             "as bimgraph's plane-to-BIM factors trust every face (default: exactly)")
+    parser.add_argument("--known-drift", action="store_true",
+                        help="give the estimator the front-end's drift rates too (default: estimated, as bimgraph must)")
+    args = parser.parse_args()
+    table = Table(title="Lower bound on the error of T_B_S (position in B, horizontal)")
+    for column in ("sequence", "sigma x, y cm", "RMS error cm", *(f"P(<= {c:g} cm)" for c in args.limit_cm), "yaw sigma deg"):
+        table.add_column(column, justify="left" if column == "sequence" else "right")
+    for root in args.sequences:
+        try:
+            b = bound(root, (np.radians(args.tolerance[0]), args.tolerance[1] / 1000), args.known_drift)
+        except BimgraphError as err:
+            sys.exit(f"error: {err}")
+        sx, sy = np.sqrt(np.diag(b["cov_xy"])) * 100
+        table.add_row(root.name, f"{sx:.2f}, {sy:.2f}", f"{np.hypot(sx, sy):.2f}",
+                      *(f"{p_within(b['cov_xy'], c / 100):.2f}" for c in args.limit_cm), f"{b['yaw_deg']:.3f}")
+    Console().print(table)
+
+
+if __name__ == "__main__":
+    main()

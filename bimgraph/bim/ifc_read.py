@@ -196,18 +196,18 @@ class ModelReader:
         built.update({e.id(): [meshes.pop(e.id())] for e in solids if e.id() in meshes})
         for element in elements:
             if element.id() in built:
-                meshes[element.id()] = _joined(built.pop(element.id()), self.T_B_W @ self.placement(element))
+                meshes[element.id()] = _joined(built.pop(element.id()))
         return meshes, built
 
     def _built(self, element) -> list[Mesh] | None:
-        """The parts of an element's body in B, built from the schema; None where the body is
-        not all extrusions of polygons and faceted breps."""
+        """The parts of an element's body in B (each with the element's placement), built from
+        the schema; None where the body is not all extrusions of polygons and faceted breps."""
         items = schema.body_items(element)
         prisms = [schema.prism(item) if item.is_a("IfcExtrudedAreaSolid") else schema.brep(item) for item in items]
         if not items or any(p is None for p in prisms):
             return None
         T_B_E = self.T_B_W @ self.placement(element)
-        return [Mesh((V * self.scale) @ T_B_E[:3, :3].T + T_B_E[:3, 3], T) for V, T in prisms]
+        return [Mesh((V * self.scale) @ T_B_E[:3, :3].T + T_B_E[:3, 3], T, T_B_E) for V, T in prisms]
 
     def boundaries(self, walls) -> list[Boundary]:
         """Surface space boundaries on the given walls, as point loops in B."""
@@ -234,11 +234,12 @@ class ModelReader:
         return out
 
 
-def _joined(parts: list[Mesh], T_B_E: np.ndarray) -> Mesh:
+def _joined(parts: list[Mesh]) -> Mesh:
     """The parts of one body as one mesh (the layers of a wall touch: its faces are found on
-    them together), placed at `T_B_E`."""
+    them together), at the element's placement, which every part carries."""
     starts = np.cumsum([0] + [len(part.V) for part in parts[:-1]])
-    return Mesh(np.vstack([part.V for part in parts]), np.vstack([part.T + start for part, start in zip(parts, starts)]), T_B_E)
+    return Mesh(np.vstack([part.V for part in parts]), np.vstack([part.T + start for part, start in zip(parts, starts)]),
+                parts[0].T_B_E)
 
 
 def available_cores() -> int:

@@ -48,6 +48,20 @@ def test_check_refuses_what_a_run_could_not_use(tmp_path, yaml, message):
     assert_one_line_error(check(tmp_path / "c.yaml"), 4, f"c.yaml: {message}")
 
 
+def test_a_section_keeps_the_defaults_of_the_keys_the_file_leaves_out(tmp_path):
+    """The site scenario's as-built defaults differ from `AsBuiltConfig`'s: a file that sets one
+    of them keeps the site's others."""
+    from bimgraph.config import load_config
+
+    path = tmp_path / "c.yaml"
+    path.write_text("sim:\n  as_built_site:\n    offset_fraction: 0.2\nbackend:\n  noise:\n    bim_offset_m: 0.02\n")
+    cfg, default = load_config(path), Config()
+    assert cfg.sim.as_built_site == default.sim.as_built_site.model_copy(update={"offset_fraction": 0.2})
+    assert cfg.sim.as_built_site.clutter_per_m2 == 0.08 and cfg.sim.as_built_site.partitions == 3
+    assert cfg.backend.noise == default.backend.noise.model_copy(update={"bim_offset_m": 0.02})
+    assert cfg.backend.offline == default.backend.offline
+
+
 def test_the_default_configuration_is_valid(tmp_path):
     (tmp_path / "default.yaml").write_text(default_yaml())
     result = check(tmp_path / "default.yaml")

@@ -50,7 +50,20 @@ def load_config(path: Path | None) -> Config:
         data = read_yaml(path)
     except InputError as err:  # (a FormatError too) the file --config names is configuration
         raise ConfigError(str(err)) from None
-    return parse_model(Config, {} if data is None else data, str(path), error=ConfigError)
+    return parse_model(Config, _onto(Config().model_dump(), {} if data is None else data), str(path), error=ConfigError)
+
+
+def _onto(defaults, overrides):
+    """The file's `overrides` merged onto the `defaults` section by section: a section the file
+    names keeps the defaults of the keys it leaves out. (Validated as they stand, a file setting
+    only `sim.as_built_site.offset_fraction` gave the site scenario `AsBuiltConfig`'s own
+    defaults for the rest: half its clutter, no boards, no partitions.)"""
+    if not isinstance(overrides, dict):
+        return overrides
+    merged = dict(defaults)
+    for key, value in overrides.items():
+        merged[key] = _onto(defaults[key], value) if isinstance(defaults.get(key), dict) else value
+    return merged
 
 
 def default_yaml() -> str:

@@ -277,13 +277,15 @@ def test_offline_judges_each_wall_against_the_others(monkeypatch):
     assert errors[True] < 0.9 * errors[False]
 
 
-def test_offline_judgement_finds_the_sound_walls_among_walls_moved_alike(tmp_path):
-    """Issue 8's scenario at its 30 % of clutter, deviation seed 2: walls built 6-10 cm off
-    the same way bend the walk into a consensus that fits the configured 1 deg tolerance as
-    well as the sound walls do (within 0.2 units of TLS cost, even with the true associations).
-    Compared at the configured tolerance, the moved walls won: the extrinsic ended 9.4 cm off
-    and the ATE 9.5 cm (measured). Compared each under the tolerance its own kept walls show,
-    whose sound walls fit far tighter, the sound walls win: both about 1 cm."""
+@pytest.mark.parametrize("seed", [2, 4])
+def test_offline_judgement_finds_the_sound_walls_among_walls_moved_alike(tmp_path, seed):
+    """Issue 8's scenario at its 30 % of clutter. Seed 2: walls built 6-10 cm off the same way
+    bend the walk into a consensus that fits the configured 1 deg tolerance as well as the
+    sound walls do (within 0.2 units of TLS cost, even with the true associations); compared
+    at that tolerance the moved walls won (extrinsic 9.4 cm off, ATE 9.5 cm, measured), compared
+    each under the tolerance its own kept walls show the sound walls win. Seed 4: neither start
+    finds the sound walls at the configured tolerance (4.5 cm, ATE 6.5 cm); GNC at a tighter
+    one does (`offline.gnc_tolerance_steps`)."""
     from bimgraph.backend.pipeline import initial_alignment, load_model, model_path
     from bimgraph.sequence.format import load_sequence
     from bimgraph.sequence.groundtruth import load_groundtruth
@@ -291,13 +293,13 @@ def test_offline_judgement_finds_the_sound_walls_among_walls_moved_alike(tmp_pat
 
     cfg = Config()
     cfg.sim.as_built_site = cfg.sim.as_built_site.model_copy(update=DEVIATIONS_AT_30_PERCENT_CLUTTER)
-    root = tmp_path / "dev2"
-    simulate(SimOptions(output=root, scenario="site", keyframes=600, seed=2), cfg)
+    root = tmp_path / f"dev{seed}"
+    simulate(SimOptions(output=root, scenario="site", keyframes=600, seed=seed), cfg)
     sequence, truth = load_sequence(root), load_groundtruth(root)
     res = OfflineEstimator(load_model(model_path(root, sequence.meta, None), cfg), cfg.backend,
                            initial_alignment(sequence.meta, cfg)).run(sequence.keyframes)
     assert extrinsic_error(res.T_B_S, truth.T_B_S)[1] < 1.5
-    assert ate(res.T_B_C, truth.T_B_C) < 0.015
+    assert ate(res.T_B_C, truth.T_B_C) < 0.02
 
 
 def test_offline_challenge_overturns_the_worse_consensus(monkeypatch):

@@ -359,3 +359,31 @@ def test_online_judgement_overrules_a_moved_wall_seen_first(judge_every):
         assert extrinsic_error(results[-1].T_B_S, scene.T_B_S)[1] < 2.0
     else:
         assert {"r00W", "r10W", "r10E"} <= set(deviating)
+
+
+def test_likelihood_cost_is_the_tls_cost_at_the_configured_tolerance_and_rewards_a_tight_fit():
+    """At the configured tolerance the candidates' likelihood cost is the TLS cost plus the
+    same normalisation for every factor; at a tighter tolerance the walls that still fit cost
+    less, and a wall that no longer fits costs what an off-plan wall costs (the same at any
+    tolerance)."""
+    from scipy.stats import chi2
+
+    scene = make_scene(60, rooms=(2, 1), seed=7)
+    est = OfflineEstimator(scene.plane_map, BackendConfig(), scene.initial)
+    est.run(scene.keyframes)
+    judge, matches = est.judge, est._matches()
+    values = est.online.graph.estimate()
+    obs = {kf.index: observations_of(kf, est.online.build) for kf in scene.keyframes}
+    graph_with = lambda factor: est._graph(scene.keyframes, obs, factor)  # noqa: E731
+    configured = est.online.build.bim_tolerance()
+    log_det = 2 * np.log(configured[0]) + np.log(configured[1])
+    judge.tolerance = configured
+    tls = judge.tls_cost(graph_with(lambda lm: None), matches, values)
+    assert judge._likelihood_cost(matches, graph_with, values) == pytest.approx(tls + len(matches) * log_det, rel=1e-9)
+    judge.tolerance = (configured[0] / 4, configured[1] / 4)
+    r2 = np.array([2.0 * judge.factor(est.landmarks[j], 1.0).error(values) for j, _ in matches])
+    off_plan = 0.5 * chi2.ppf(judge.cfg.gnc_probability, 3) + log_det
+    tight = 2 * np.log(configured[0] / 4) + np.log(configured[1] / 4)
+    expected = graph_with(lambda lm: None).error(values) + np.minimum(0.5 * r2 + tight, off_plan).sum()
+    assert judge._likelihood_cost(matches, graph_with, values) == pytest.approx(expected, rel=1e-9)
+    assert (0.5 * r2 + tight < off_plan).any()

@@ -124,7 +124,7 @@ class RobustAlignment:
                 starts.append(consensus)
             for start in starts:
                 self.tolerance = (normal, tolerance[1])
-                candidates.append(self._tightened(matches, graph_with, self._judged(matches, graph_with, start, solve), solve))
+                candidates.append(self._tightened(matches, graph_with, start, solve))
             best.append(min(candidates, key=lambda candidate: candidate[0]))
         # a tighter start's verdicts replace those of the current tolerance only if they explain
         # the data clearly better (a likelihood-ratio test on the tolerance's two parameters): on a
@@ -163,8 +163,7 @@ class RobustAlignment:
         offline estimator's challenge), then tighten the tolerance and test each kept factor
         as `decide` does after choosing. Returns the estimate under the verdicts."""
         solve = BatchSolver(self.cfg.gnc_iterations, self.cfg.relative_error_tol)
-        _, self.tolerance, self.verdicts, values, graph = self._tightened(
-            matches, graph_with, self._judged(matches, graph_with, values, solve), solve)
+        _, self.tolerance, self.verdicts, values, graph = self._tightened(matches, graph_with, values, solve)
         return self._studentize(graph_with, values, graph, solve)
 
     def verdicts_at(self, matches: list[tuple[int, str]], values: gtsam.Values) -> dict[tuple[int, str], str]:
@@ -186,25 +185,24 @@ class RobustAlignment:
         return lambda lm: self.factor(lm, 1.0, verdicts[lm.id, lm.face])
 
     def _judged(self, matches, graph_with: GraphWith, values: gtsam.Values, solve: BatchSolver):
-        """The verdicts at `values`, the estimate re-solved under them, its TLS cost, and the
-        graph it solves: (cost, verdicts, estimate, graph)."""
+        """The verdicts at `values`, the estimate re-solved under them, and the graph it
+        solves: (verdicts, estimate, graph)."""
         verdicts = self.verdicts_at(matches, values)
         graph = graph_with(self.factors(verdicts))
-        values = solve(graph, values)
-        return self.tls_cost(graph_with(lambda lm: None), matches, values), verdicts, values, graph
+        return verdicts, solve(graph, values), graph
 
-    def _tightened(self, matches, graph_with: GraphWith, judged, solve: BatchSolver):
-        """A judged candidate (`_judged`) with the tolerance tightened to what its kept walls
-        show, re-judged under it until it settles: (likelihood cost, tolerance, verdicts,
-        estimate, graph). Leaves `tolerance` and `verdicts` as the candidate's."""
+    def _tightened(self, matches, graph_with: GraphWith, start: gtsam.Values, solve: BatchSolver):
+        """The candidate judged at `start` (`_judged`), with the tolerance tightened to what its
+        kept walls show, re-judged under it until it settles: (likelihood cost, tolerance,
+        verdicts, estimate, graph). Leaves `tolerance` and `verdicts` as the candidate's."""
         cfg = self.cfg
-        _, self.verdicts, values, graph = judged
+        self.verdicts, values, graph = self._judged(matches, graph_with, start, solve)
         for _ in range(cfg.tolerance_rounds if cfg.estimate_tolerance else 0):
             estimated = self._estimated_tolerance(graph, values)
             if np.allclose(estimated, self.tolerance, rtol=0.1):
                 break
             self.tolerance = estimated
-            _, self.verdicts, values, graph = self._judged(matches, graph_with, values, solve)
+            self.verdicts, values, graph = self._judged(matches, graph_with, values, solve)
         return self._likelihood_cost(matches, graph_with, values), self.tolerance, self.verdicts, values, graph
 
     def _likelihood_cost(self, matches, graph_with: GraphWith, values: gtsam.Values) -> float:

@@ -79,6 +79,10 @@ def test_offline_measures_and_removes_the_drift():
         cfg.offline.estimate_drift = estimate_drift
         # 13 m of walk: the drift is at the edge of significance against the configured noise
         cfg.offline.drift_probability = 0.5
+        # the walls trusted as the test was written (the tolerance estimate's 95 % upper bound,
+        # a 0.1 deg floor): trusted to the estimate itself, they take most of the drift out
+        # even where it is not removed (ATE 7.2 -> 4.8 cm; removed: 4.1 -> 4.5 cm)
+        cfg.offline.tolerance_confidence, cfg.offline.tolerance_floor_deg = 0.95, 0.1
         est = OfflineEstimator(scene.plane_map, cfg, scene.initial)
         res = est.run(keyframes)
         errors[estimate_drift] = ate(res.T_B_C, scene.T_B_C)

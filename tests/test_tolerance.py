@@ -4,6 +4,7 @@ factors with independent errors of known spread, modelled with a wrong spread.""
 
 import numpy as np
 import pytest
+from scipy.stats import chi2
 
 from bimgraph.backend import tolerance
 
@@ -89,6 +90,18 @@ def test_few_factors_cannot_talk_the_tolerance_down_far():
     # the largest of 4 bounds the median at 94 % only: not enough for 95 %
     assert tolerance.variance_factors(terms[:4], 0.95)[0] == 1.0
     assert tolerance.variance_factors(terms[:2], 0.95)[1] == 1.0  # 4 tilt components
+
+
+def test_at_even_confidence_the_estimate_is_the_median_from_enough_samples():
+    true_sigma = np.array([0.003, np.radians(0.2), np.radians(0.2)])
+    model = np.array([CONFIGURED[1], CONFIGURED[0], CONFIGURED[0]])
+    terms = solve(9, true_sigma, model)
+    offsets = sorted(s[0] / r[0] for s, r in terms)
+    assert tolerance.variance_factors(terms, 0.5)[0] == pytest.approx(offsets[4] / chi2.ppf(0.5, 1), rel=1e-9)
+    assert tolerance.variance_factors(terms, 0.95)[0] > tolerance.variance_factors(terms, 0.5)[0]
+    # one offset per wall: four walls are too few for five samples, their tilts (eight) are not
+    few = tolerance.variance_factors(terms[:4], 0.5, min_samples=5)
+    assert few[0] == 1.0 and few[1] != 1.0
 
 
 def test_never_looser_than_configured_nor_tighter_than_the_floor():

@@ -286,8 +286,9 @@ class RobustAlignment:
                 A, e = self._deviation_residual(j, face, values)
                 terms.append(tolerance.redundancy(A, e, joint([E, X(self.landmarks[j].anchor), L(j)])))
         cfg = self.cfg
-        return tolerance.tightened(self.tolerance, tolerance.variance_factors(terms, cfg.tolerance_confidence),
-                                   self.build.bim_tolerance(), (np.radians(cfg.tolerance_floor_deg), cfg.tolerance_floor_m))
+        factors = tolerance.variance_factors(terms, cfg.tolerance_confidence, min_samples=cfg.tolerance_min_samples)
+        return tolerance.tightened(self.tolerance, factors, self.build.bim_tolerance(),
+                                   (np.radians(cfg.tolerance_floor_deg), cfg.tolerance_floor_m))
 
     def _joint_marginals(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> JointMarginals:
         """The joint marginals of `graph` at `values` among the judged landmarks, their anchors

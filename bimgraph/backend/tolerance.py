@@ -9,10 +9,10 @@ could say about the poses and about every other wall's deviation. The residuals 
 factors tell: split into the offset at the face centre and the two tilt components, each
 component's squared whitened residual over its redundancy (the share of its information the
 rest of the graph does not repeat) measures its group's variance factor. The estimate is robust
-(a median: GNC keeps walls built off plan by less than its threshold) and an upper confidence
-bound, so that a handful of walls cannot talk the tolerance down; and it only ever tightens
-the configured one, since a wall beyond it is a deviation, for GNC to judge, not evidence of a
-looser building.
+(a median: GNC keeps walls built off plan by less than its threshold), needs a few walls (one
+or two cannot talk the tolerance down), may be taken as an upper confidence bound, and only
+ever tightens the configured tolerance, since a wall beyond it is a deviation, for GNC to
+judge, not evidence of a looser building.
 """
 
 from __future__ import annotations
@@ -55,17 +55,19 @@ def studentized(A: np.ndarray, e: np.ndarray, cov: np.ndarray, groups: tuple[int
 
 
 def variance_factors(terms: list[tuple[np.ndarray, np.ndarray]], confidence: float,
-                     groups: tuple[int, ...] = FACE_GROUPS, min_redundancy: float = 0.05) -> np.ndarray:
+                     groups: tuple[int, ...] = FACE_GROUPS, min_redundancy: float = 0.05,
+                     min_samples: int = 1) -> np.ndarray:
     """Upper `confidence` bounds of the variance factors of the component `groups` (for each
     residual component, the index of its group; by default a face's offset, tilt) from the
-    factors' `redundancy` terms. Each component's `e^2 / r` is the variance factor times a chi-square
-    variable of one degree of freedom, whatever its correlation with the others; the median of
-    a group's, over the chi-square median, estimates the group's factor whatever a minority of
-    walls built just inside GNC's threshold add (a sum of squares would follow them), and the
-    order statistic that bounds the median from above at `confidence` (binomial) makes it an
-    upper bound. Components the rest of the graph barely checks (`r` below `min_redundancy`)
-    say nothing; a group with too few samples for the bound (the largest of n samples bounds
-    the median at 1 - 0.5^n) keeps its factor of 1."""
+    factors' `redundancy` terms; at `confidence` 0.5, the estimates themselves. Each
+    component's `e^2 / r` is the variance factor times a chi-square variable of one degree of
+    freedom, whatever its correlation with the others; the median of a group's, over the
+    chi-square median, estimates the group's factor whatever a minority of walls built just
+    inside GNC's threshold add (a sum of squares would follow them), and the order statistic
+    that bounds the median from above at `confidence` (binomial) makes it an upper bound.
+    Components the rest of the graph barely checks (`r` below `min_redundancy`) say nothing; a
+    group with fewer than `min_samples` samples, or too few for the bound (the largest of n
+    samples bounds the median at 1 - 0.5^n), keeps its factor of 1."""
     samples: list[list[float]] = [[] for _ in range(max(groups) + 1)]
     for squares, r in terms:
         for c, g in enumerate(groups):
@@ -73,7 +75,7 @@ def variance_factors(terms: list[tuple[np.ndarray, np.ndarray]], confidence: flo
                 samples[g].append(squares[c] / r[c])
     out = np.ones(len(samples))
     for g, q in enumerate(samples):
-        if 1.0 - 0.5 ** len(q) < confidence:
+        if len(q) < min_samples or 1.0 - 0.5 ** len(q) < confidence:
             continue
         q = np.sort(q)
         k = min(int(binom.ppf(confidence, len(q), 0.5)), len(q) - 1)

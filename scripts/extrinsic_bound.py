@@ -192,6 +192,7 @@ def face_bounds(root: Path, tolerance: tuple[float, float], known_drift: bool, m
     faces = [f for f in truth.as_built["faces"] if f["built"] and seen[f["face_id"]] >= min_keyframes]
     moved = frozenset(f["face_id"] for f in faces if not as_planned(f))
     graph, values, planes, priors = fisher_graph(sequence, truth, frontend, known_planes(truth, tolerance, moved), known_drift)
+    direction_only = known_planes(truth, tolerance, frozenset(f["face_id"] for f in faces))
     rows = []
     base = gtsam.Marginals(graph, values)
     for face in faces:
@@ -203,7 +204,7 @@ def face_bounds(root: Path, tolerance: tuple[float, float], known_drift: bool, m
             for i in range(graph.size()):  # shares the factors; clone() fails on LinearContainerFactor
                 measured.add(graph.at(i))
             plane_B = values.atOrientedPlane3(key).planeCoefficients()
-            measured.replace(priors[face_id], plane_prior_factor(plane_B, known_planes(truth, (0.0, 0.0), frozenset([face_id]))[face_id], key))
+            measured.replace(priors[face_id], plane_prior_factor(plane_B, direction_only[face_id], key))
             cov = gtsam.Marginals(measured, values).marginalCovariance(key)
         centre = np.asarray(plane_map.faces[plane_map.index[face_id]].centre)
         as_built = np.asarray(face["plane_as_built"], dtype=float)
@@ -263,7 +264,7 @@ def main():
                         help="give the estimator the front-end's drift rates too (default: estimated, as bimgraph must)")
     parser.add_argument("--faces", action="store_true",
                         help="bound each built face's offset instead (issue 8's deviations), every other face built "
-                             "as planned given exactly and every face's direction given")
+                             "as planned given (exactly, or within --tolerance) and every face's direction given")
     parser.add_argument("--min-keyframes", type=int, default=3, help="with --faces: faces seen in fewer keyframes are left out "
                         "(the deviation report's `deviations.min_keyframes`)")
     parser.add_argument("--report", type=Path, default=None, metavar="REL",

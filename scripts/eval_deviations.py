@@ -5,9 +5,13 @@ the ground truth; and compare extrinsic error and ATE with the same world withou
     python scripts/eval_deviations.py --sequences SEQ... --clean NODEVSEQ... [--oracle] [--[no-]gnc]
     python scripts/eval_deviations.py --synthetic [--seeds 0 1 2] [--[no-]gnc] [-c CONFIG]
 
-`--sequences` are simulator sequences (`bimgraph simulate`, with `groundtruth/as_built.json`);
-`--clean` the same scenarios and seeds simulated without deviations (for the extrinsic and ATE
-ratios). `--synthetic` uses the backend's synthetic rooms (`bimgraph.backend.synthetic`), with
+`--sequences` are simulator sequences (`bimgraph simulate`, with `groundtruth/as_built.json`).
+Each is also run against its twin without deviations: the same observations, the plan moved to
+where the walls were built (`twin_*`, and the `twin_*_ratio` columns): the comparison that the
+deviations alone change, as the synthetic world's. `--clean` adds the same scenarios and seeds
+simulated without deviations (`clean_*` and the other ratios): a comparison that the two runs'
+independent sensor noise also changes (the simulator draws it anew where the world differs).
+`--synthetic` uses the backend's synthetic rooms (`bimgraph.backend.synthetic`), with
 a share of faces moved 5-10 cm and a share not built (their observations removed); there
 `clean_*` is the world as planned and `nodev_*` the same missing walls without deviations,
 and the ratios are against the latter. `--oracle` gives the backend the true associations, to
@@ -52,10 +56,7 @@ def deviate_synthetic(scene, rng, deviating_fraction: float, missing_fraction: f
     missing = set(order[n_dev:n_dev + n_missing].tolist())
     for i, f in enumerate(faces):
         offset = rng.uniform(0.05, 0.10) * rng.choice([-1.0, 1.0]) if i in deviating else 0.0
-        n = np.asarray(f.normal)
-        planned.append(f.model_copy(update={"offset": f.offset + offset,
-                                            "polygon": [tuple(np.asarray(p) - offset * n) for p in f.polygon],
-                                            "centre": tuple(np.asarray(f.centre) - offset * n)}))
+        planned.append(f.moved_to([*f.normal, f.offset + offset]))
         truth[f.id] = (offset, 0.0, i not in missing)
     missing_ids = {faces[i].id for i in missing}
     keyframes = []
@@ -140,6 +141,16 @@ def load_simulated(root: Path, cfg: Config):
     return seq, gt, plane_map, initial, truth
 
 
+def plan_as_built(plane_map: PlaneMap, as_built: dict) -> PlaneMap:
+    """The plan with every face moved to where it was built: the same scenario without
+    deviations, seen through the very same observations (so the same sensor noise, clutter and
+    missing walls), which an independently simulated clean world (`--clean`) is not."""
+    moved = {rec["face_id"]: rec["plane_as_built"] for rec in as_built["faces"]
+             if rec["built"] and not np.allclose(rec["plane_as_built"], rec["plane_planned"])}
+    faces = [f.moved_to(moved[f.id]) if f.id in moved else f for f in plane_map.faces]
+    return PlaneMap(**{**plane_map.model_dump(exclude={"faces"}), "faces": faces})
+
+
 def oracle_of(gt) -> dict:
     """(keyframe, observation) -> true face id (None for clutter, floors, ceilings)."""
     return {(k, i): p["face_id"] for k, planes in enumerate(gt.observations) for i, p in enumerate(planes)}
@@ -152,6 +163,12 @@ def run_simulated(root: Path, clean_root: Path | None, args, cfg) -> dict:
                    kinds={(k, i): p["kind"] for k, planes in enumerate(gt.observations) for i, p in enumerate(planes)})
     kinds = [p["kind"] for planes in gt.observations for p in planes]
     out["clutter_share"] = sum(k not in ("wall", "floor", "ceiling") for k in kinds) / max(len(kinds), 1)
+    twin = run_clean(plan_as_built(plane_map, gt.as_built), seq.keyframes, initial, gt.T_B_C, gt.T_B_S, cfg.backend,
+                     oracle_of(gt) if args.oracle else None)
+    out.update({f"twin_{k}": v for k, v in twin.items()})
+    out["twin_ext_cm_ratio"] = out["ext_cm"] / max(twin["ext_cm"], 1e-9)
+    out["twin_ext_deg_ratio"] = out["ext_deg"] / max(twin["ext_deg"], 1e-9)
+    out["twin_ate_ratio"] = out["ate_m"] / max(twin["ate_m"], 1e-9)
     if clean_root is not None:
         seq_c, gt_c, plane_map_c, initial_c, _ = load_simulated(clean_root, cfg)
         clean = run_clean(plane_map_c, seq_c.keyframes, initial_c, gt_c.T_B_C, gt_c.T_B_S, cfg.backend,

@@ -28,7 +28,11 @@ built as planned (within `--tolerance`), every built face's direction, and not t
 the faces built off plan; then the share of those faces an estimator at the bound would measure
 within each limit.
 
-    python scripts/extrinsic_bound.py SEQ [SEQ ...] [--limit-cm 1 2] [--tolerance DEG MM] [--known-drift] [--faces [--report REL]]
+With `--twin`, the faces built off plan are given too, where they were built: the bound of the
+same walk against the plan as built. Its ratio to the plain bound is how much the deviations
+alone must cost any estimator (issue 8's extrinsic ratios, scripts/eval_deviations.py's twin).
+
+    python scripts/extrinsic_bound.py SEQ [SEQ ...] [--limit-cm 1 2] [--tolerance DEG MM] [--known-drift] [--twin | --faces [--report REL]]
 """
 
 from __future__ import annotations
@@ -64,17 +68,20 @@ def as_planned(face: dict) -> bool:
     return face["built"] and np.allclose(face["plane_planned"], face["plane_as_built"], atol=1e-9)
 
 
-def known_planes(truth, tolerance: tuple[float, float], measured: frozenset[str] = frozenset()) -> dict[str, gtsam.noiseModel.Base]:
+def known_planes(truth, tolerance: tuple[float, float], measured: frozenset[str] = frozenset(),
+                 twin: bool = False) -> dict[str, gtsam.noiseModel.Base]:
     """The noise of what the estimator is given of each face built as planned (its tilt and
     its offset at its centre within `tolerance`, radians and metres, or exactly where zero),
     and of the floor and ceiling (exactly), by element. Of the faces in `measured` it is given
-    their direction, exactly (bimgraph must estimate it), and not their offset."""
+    their direction, exactly (bimgraph must estimate it), and not their offset. With `twin`,
+    every built face counts as built as planned: the plan moved to where the walls were built
+    (scripts/eval_deviations.py's twin run)."""
     exact = gtsam.noiseModel.Isotropic.Sigma(3, KNOWN)
     known = {"floor": exact, "ceiling": exact}
     centres = {e["name"]: np.mean(e["polygon"], axis=0) for e in truth.as_built["elements"]}
     for face in truth.as_built["faces"]:
         face_id = face["face_id"]
-        if face_id not in measured and not as_planned(face):
+        if face_id not in measured and not (as_planned(face) or (twin and face["built"])):
             continue
         basis = gtsam.Unit3(np.asarray(face["plane_as_built"][:3], dtype=float)).basis()
         if face_id in measured:
@@ -158,10 +165,10 @@ def load(root: Path):
     return sequence, truth, FrontEndConfig(**sequence.meta.simulated["options"]["frontend"])
 
 
-def bound(root: Path, tolerance: tuple[float, float], known_drift: bool) -> dict:
+def bound(root: Path, tolerance: tuple[float, float], known_drift: bool, twin: bool = False) -> dict:
     """The bound's covariance of T_B_S's horizontal position (m, in B) and its yaw sigma (deg)."""
     sequence, truth, frontend = load(root)
-    graph, values, _, _ = fisher_graph(sequence, truth, frontend, known_planes(truth, tolerance), known_drift)
+    graph, values, _, _ = fisher_graph(sequence, truth, frontend, known_planes(truth, tolerance, twin=twin), known_drift)
     cov = gtsam.Marginals(graph, values).marginalCovariance(E(0))
     R = truth.T_B_S[:3, :3]  # Pose3's tangent is in the body frame: rotate into B
     cov_t = R @ cov[3:, 3:] @ R.T
@@ -262,6 +269,9 @@ def main():
                              "as bimgraph's plane-to-BIM factors trust every face (default: exactly)")
     parser.add_argument("--known-drift", action="store_true",
                         help="give the estimator the front-end's drift rates too (default: estimated, as bimgraph must)")
+    parser.add_argument("--twin", action="store_true",
+                        help="give the faces built off plan too, where they were built: the bound of the run against "
+                             "the plan as built (scripts/eval_deviations.py's twin)")
     parser.add_argument("--faces", action="store_true",
                         help="bound each built face's offset instead (issue 8's deviations), every other face built "
                              "as planned given (exactly, or within --tolerance) and every face's direction given")
@@ -281,7 +291,7 @@ def main():
         for column in ("sequence", "sigma x, y cm", "RMS error cm", *(f"P(<= {c:g} cm)" for c in args.limit_cm), "yaw sigma deg"):
             table.add_column(column, justify="left" if column == "sequence" else "right")
         for root in args.sequences:
-            b = bound(root, tolerance, args.known_drift)
+            b = bound(root, tolerance, args.known_drift, args.twin)
             sx, sy = np.sqrt(np.diag(b["cov_xy"])) * 100
             table.add_row(root.name, f"{sx:.2f}, {sy:.2f}", f"{np.hypot(sx, sy):.2f}",
                           *(f"{p_within(b['cov_xy'], c / 100):.2f}" for c in args.limit_cm), f"{b['yaw_deg']:.3f}")

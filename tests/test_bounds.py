@@ -54,3 +54,7 @@ def test_trusting_the_sound_faces_less_never_tightens_a_bound(bounds, site):
     assert np.trace(placed_loose["cov_xy"]) >= np.trace(placed["cov_xy"]) * (1 - 1e-6)
     known_drift = bounds.bound(site, (0.0, 0.0), known_drift=True)
     assert np.trace(known_drift["cov_xy"]) <= np.trace(placed["cov_xy"]) * (1 + 1e-6)
+    # the plan moved to where the walls were built tells the estimator more, never less
+    twin = bounds.bound(site, (0.0, 0.0), known_drift=False, twin=True)
+    assert np.trace(twin["cov_xy"]) <= np.trace(placed["cov_xy"]) * (1 + 1e-6)
+    assert twin["yaw_deg"] <= placed["yaw_deg"] * (1 + 1e-6)

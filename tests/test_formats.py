@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from bimgraph.bim.planemap import load_plane_map, polygon_area_centre, save_plane_map
+from bimgraph.bim.planemap import BimFace, load_plane_map, polygon_area_centre, save_plane_map
 from bimgraph.errors import FormatError, InputError
 from bimgraph.sequence.format import iter_keyframes, load_sequence
 
@@ -42,6 +42,26 @@ def test_polygon_with_hole():
     assert area == pytest.approx(3.0)
     # Moments: (4 * (1, 1) - 1 * (0.5, 0.5)) / 3
     assert np.allclose(centre, [3.5 / 3, 0, 3.5 / 3])
+
+
+def test_face_moved_to_another_plane():
+    """A wall built off plan: the face moved along its normal keeps its shape and holes; tilted
+    about its centre, it keeps its centre."""
+    face = load_face_with_hole()
+    moved = face.moved_to([0, -1, 0, 5.07])
+    assert moved.area == pytest.approx(face.area)
+    assert np.allclose(moved.centre, np.asarray(face.centre) + [0, 0.07, 0])
+    assert np.allclose(np.asarray(moved.holes[0]) - face.holes[0], [0, 0.07, 0])
+    tilt = np.radians(2.0)
+    n = np.array([0.0, -np.cos(tilt), np.sin(tilt)])
+    tilted = face.moved_to([*n, -n @ np.asarray(face.centre)])
+    assert np.allclose(np.asarray(tilted.polygon) @ n - n @ np.asarray(face.centre), 0.0)
+    assert tilted.area == pytest.approx(face.area * np.cos(tilt))  # projected: the height foreshortened
+    assert np.allclose(tilted.centre, face.centre)
+
+
+def load_face_with_hole():
+    return BimFace(**{**HAND_MAP["faces"][0], "holes": [[[1, 5, 1], [2, 5, 1], [2, 5, 2], [1, 5, 2]]]})
 
 
 @pytest.mark.parametrize(

@@ -87,6 +87,18 @@ class BimFace(BaseModel):
         """(nx, ny, nz, d) as a numpy array."""
         return np.array([*self.normal, self.offset])
 
+    def moved_to(self, plane) -> BimFace:
+        """The face on another plane `(n, d)` (a wall built off plan): its polygon and holes
+        projected onto it, area and centre recomputed."""
+        n, d = np.asarray(plane[:3], dtype=float), float(plane[3])
+
+        def project(ring):
+            points = np.asarray(ring, dtype=float)
+            return [tuple(p) for p in points - np.outer(points @ n + d, n)]
+
+        return BimFace(**{**self.model_dump(), "normal": tuple(n), "offset": d, "polygon": project(self.polygon),
+                          "holes": [project(h) for h in self.holes], "area": None, "centre": None})
+
 
 class PlaneMap(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)

@@ -1,5 +1,7 @@
-"""Shared fixtures: where the real IFC samples are, and whether their absence is allowed."""
+"""Shared fixtures: where the real IFC samples are, and whether their absence is allowed; the
+scripts' functions, for the tests of scripts."""
 
+import importlib.util
 import os
 from pathlib import Path
 
@@ -27,3 +29,11 @@ def ifc_samples() -> Path:
 def sample_models() -> list[str]:
     """Names of the sample models, for parametrising (empty if the folder is absent)."""
     return sorted(p.name for p in ifc_samples_dir().glob("*.ifc"))
+
+
+def load_script(name: str):
+    """`scripts/<name>.py` as a module (scripts are not a package)."""
+    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

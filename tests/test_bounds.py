@@ -2,26 +2,20 @@
 T_B_S, or measure a face's offset, on a simulated walk) behave as bounds: finite and positive,
 and never tighter when the estimator is told less."""
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from bimgraph.config import Config
 from bimgraph.sequence.groundtruth import load_groundtruth
 from bimgraph.sim.simulate import SimOptions, simulate
+from conftest import load_script
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "extrinsic_bound.py"
 LOOSE = (np.radians(0.1), 0.002)  # the robust alignment's tolerance floor (deg, m)
 
 
 @pytest.fixture(scope="module")
 def bounds():
-    spec = importlib.util.spec_from_file_location("extrinsic_bound", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("extrinsic_bound")
 
 
 @pytest.fixture(scope="module")

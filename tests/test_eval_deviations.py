@@ -1,9 +1,6 @@
 """`scripts/eval_deviations.py`'s twin: the plan moved to where the walls were built, so that a
 run on the same observations is the same scenario without deviations."""
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -12,16 +9,12 @@ from bimgraph.config import Config
 from bimgraph.sequence.format import load_sequence
 from bimgraph.sequence.groundtruth import load_groundtruth
 from bimgraph.sim.simulate import SimOptions, simulate
-
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "eval_deviations.py"
+from conftest import load_script
 
 
 @pytest.fixture(scope="module")
 def script():
-    spec = importlib.util.spec_from_file_location("eval_deviations", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("eval_deviations")
 
 
 def test_twin_moves_exactly_the_faces_built_off_plan(script, tmp_path):

@@ -11,6 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 from cli_errors import assert_one_line_error
+from conftest import load_script
 from synthetic_sequence import write_sequence
 
 os.environ.setdefault("RERUN_ANALYTICS", "0")
@@ -123,15 +124,11 @@ def test_view_finds_the_sequence_the_run_names(online_run):
 
 def test_plot_run_draws_the_run(online_run, seq_dir, tmp_path):
     pytest.importorskip("matplotlib")
-    import importlib.util
-
     import cv2
 
     from bimgraph.config import Config
 
-    spec = importlib.util.spec_from_file_location("plot_run", os.path.join(os.path.dirname(__file__), "..", "scripts", "plot_run.py"))
-    plot_run = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(plot_run)
+    plot_run = load_script("plot_run")
     png = tmp_path / "run.png"
     plot_run.plot_run(online_run, seq_dir[0], png, Config())
     image = cv2.imread(str(png))

@@ -2,7 +2,7 @@
 as-built deviations, missing walls and clutter, report the deviations, and score them against
 the ground truth; and compare extrinsic error and ATE with the same world without deviations.
 
-    python scripts/eval_deviations.py --sequences SEQ... --clean NODEVSEQ... [--oracle] [--[no-]gnc]
+    python scripts/eval_deviations.py --sequences SEQ... [--clean NODEVSEQ...] [--oracle] [--[no-]gnc]
     python scripts/eval_deviations.py --synthetic [--seeds 0 1 2] [--[no-]gnc] [-c CONFIG]
 
 `--sequences` are simulator sequences (`bimgraph simulate`, with `groundtruth/as_built.json`).
@@ -151,6 +151,12 @@ def plan_as_built(plane_map: PlaneMap, as_built: dict) -> PlaneMap:
     return PlaneMap(**{**plane_map.model_dump(exclude={"faces"}), "faces": faces})
 
 
+def ratios(run: dict, reference: dict, prefix: str = "") -> dict:
+    """Issue 8's ratios of a run's extrinsic errors and ATE to those of a reference run."""
+    names = {"ext_cm": "ext_cm_ratio", "ext_deg": "ext_deg_ratio", "ate_m": "ate_ratio"}
+    return {prefix + name: run[k] / max(reference[k], 1e-9) for k, name in names.items()}
+
+
 def oracle_of(gt) -> dict:
     """(keyframe, observation) -> true face id (None for clutter, floors, ceilings)."""
     return {(k, i): p["face_id"] for k, planes in enumerate(gt.observations) for i, p in enumerate(planes)}
@@ -166,17 +172,13 @@ def run_simulated(root: Path, clean_root: Path | None, args, cfg) -> dict:
     twin = run_clean(plan_as_built(plane_map, gt.as_built), seq.keyframes, initial, gt.T_B_C, gt.T_B_S, cfg.backend,
                      oracle_of(gt) if args.oracle else None)
     out.update({f"twin_{k}": v for k, v in twin.items()})
-    out["twin_ext_cm_ratio"] = out["ext_cm"] / max(twin["ext_cm"], 1e-9)
-    out["twin_ext_deg_ratio"] = out["ext_deg"] / max(twin["ext_deg"], 1e-9)
-    out["twin_ate_ratio"] = out["ate_m"] / max(twin["ate_m"], 1e-9)
+    out.update(ratios(out, twin, "twin_"))
     if clean_root is not None:
         seq_c, gt_c, plane_map_c, initial_c, _ = load_simulated(clean_root, cfg)
         clean = run_clean(plane_map_c, seq_c.keyframes, initial_c, gt_c.T_B_C, gt_c.T_B_S, cfg.backend,
                           oracle_of(gt_c) if args.oracle else None)
         out.update({f"clean_{k}": v for k, v in clean.items()})
-        out["ext_cm_ratio"] = out["ext_cm"] / max(clean["ext_cm"], 1e-9)
-        out["ext_deg_ratio"] = out["ext_deg"] / max(clean["ext_deg"], 1e-9)
-        out["ate_ratio"] = out["ate_m"] / max(clean["ate_m"], 1e-9)
+        out.update(ratios(out, clean))
     return out
 
 
@@ -194,8 +196,7 @@ def run_synthetic(seed: int, args, cfg) -> dict:
     # The same walls missing, none deviating: the plan as built, the same observations.
     missing_only = run_clean(scene.plane_map, keyframes, scene.initial, T_B_C_true, scene.T_B_S, cfg.backend)
     out.update({f"nodev_{k}": v for k, v in missing_only.items()})
-    out["ext_cm_ratio"] = out["ext_cm"] / max(missing_only["ext_cm"], 1e-9)
-    out["ate_ratio"] = out["ate_m"] / max(missing_only["ate_m"], 1e-9)
+    out.update(ratios(out, missing_only))
     return out
 
 

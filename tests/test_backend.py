@@ -8,6 +8,7 @@ import pytest
 from bimgraph.backend import (Alignment, Backend, BimAssociator, FaceIndex, Listener, planes_in_B_independent,
                               run_offline, run_online)
 from bimgraph.backend.landmarks import Landmark
+from bimgraph.backend.online import covariance_due
 from bimgraph.backend.synthetic import make_scene
 from bimgraph.bim.planemap import BimFace, PlaneMap
 from bimgraph.config import BackendConfig
@@ -412,3 +413,12 @@ def test_online_revises_a_match_no_longer_observed():
             matched_at = kf.index
     assert matched_at + cfg.isam2.refresh_every < scene.keyframes[-1].index
     assert backend.landmarks[j].face is None and wrong in backend.landmarks[j].rejected
+
+
+def test_long_seen_landmarks_have_their_marginals_read_ever_more_rarely():
+    cfg = BackendConfig().isam2
+    due = [n for n in range(1, 1025) if covariance_due(n, cfg)]
+    assert due[:6] == [1, 2, 3, 4, 8, 16]  # early, then every covariance_every
+    assert [n for n in due if 512 <= n <= 1024] == [512, 640, 768, 896, 1024]  # every n / 4
+    legacy = cfg.model_copy(update={"covariance_growth": 0.0})
+    assert [n for n in range(1, 1025) if covariance_due(n, legacy)] == [1, 2, 3, 4] + list(range(8, 1025, 8))

@@ -14,7 +14,7 @@ independent sensor noise also changes (the simulator draws it anew where the wor
 `--synthetic` uses the backend's synthetic rooms (`bimgraph.backend.synthetic`), with
 a share of faces moved 5-10 cm and a share not built (their observations removed); there
 `clean_*` is the world as planned and `nodev_*` the same missing walls without deviations,
-and the ratios are against the latter. `--oracle` gives the backend the true associations, to
+and the ratios (extrinsic cm and deg, ATE) are against the latter. `--oracle` gives the backend the true associations, to
 measure the deviation step apart from the association. `--gnc` / `--no-gnc` override
 `backend.offline.gnc` (the robust alignment: graduated non-convexity judges which plane-to-BIM
 factors the alignment keeps) in every run. `not_kept` counts the faces whose factor GNC did not
@@ -40,7 +40,7 @@ from bimgraph.config import BackendConfig, Config, DeviationConfig, load_config
 from bimgraph.deviations.outputs import write_deviation_outputs
 from bimgraph.evaluation.metrics import ate, extrinsic_error
 from bimgraph.sequence.format import Camera, load_sequence
-from bimgraph.sequence.groundtruth import load_groundtruth
+from bimgraph.sequence.groundtruth import as_planned, load_groundtruth
 
 
 def deviate_synthetic(scene, rng, deviating_fraction: float, missing_fraction: float):
@@ -142,12 +142,18 @@ def load_simulated(root: Path, cfg: Config):
 
 
 def plan_as_built(plane_map: PlaneMap, as_built: dict) -> PlaneMap:
-    """The plan with every face moved to where it was built: the same scenario without
-    deviations, seen through the very same observations (so the same sensor noise, clutter and
-    missing walls), which an independently simulated clean world (`--clean`) is not."""
-    moved = {rec["face_id"]: rec["plane_as_built"] for rec in as_built["faces"]
-             if rec["built"] and not np.allclose(rec["plane_as_built"], rec["plane_planned"])}
-    faces = [f.moved_to(moved[f.id]) if f.id in moved else f for f in plane_map.faces]
+    """The plan with every face built off plan replaced by the face as built (its plane and
+    outline from the simulator's elements): the same scenario without deviations, seen through
+    the very same observations (so the same sensor noise, clutter and missing walls), which an
+    independently simulated clean world (`--clean`) is not."""
+    elements = {e["face_id"]: e for e in as_built["elements"] if e["face_id"] is not None}
+    moved = {rec["face_id"]: rec for rec in as_built["faces"] if rec["built"] and not as_planned(rec)}
+
+    def built(face):
+        element = elements[face.id]
+        return face.moved_to(moved[face.id]["plane_as_built"], element["polygon"], element["holes"])
+
+    faces = [built(f) if f.id in moved else f for f in plane_map.faces]
     return PlaneMap(**{**plane_map.model_dump(exclude={"faces"}), "faces": faces})
 
 

@@ -55,17 +55,13 @@ from bimgraph.deviations.report import load_deviations
 from bimgraph.errors import BimgraphError
 from bimgraph.geometry import inverse, plane_from_frame
 from bimgraph.sequence.format import load_sequence
-from bimgraph.sequence.groundtruth import load_groundtruth
+from bimgraph.sequence.groundtruth import as_planned, load_groundtruth
 from factors import face_tolerance_cov, plane_prior_factor
 
 UP = np.array([0.0, 0.0, 1.0])
 KNOWN = 1e-5  # sigma of what the estimator is given exactly (radians, metres)
 UNKNOWN_M = 1.0  # sigma of an offset the estimator is not given (metres: no information beside a walk's)
 DRIFT = gtsam.symbol("d", 0)  # the front-end's drift rates, unless given
-
-
-def as_planned(face: dict) -> bool:
-    return face["built"] and np.allclose(face["plane_planned"], face["plane_as_built"], atol=1e-9)
 
 
 def known_planes(truth, tolerance: tuple[float, float], measured: frozenset[str] = frozenset(),
@@ -269,10 +265,11 @@ def main():
                              "as bimgraph's plane-to-BIM factors trust every face (default: exactly)")
     parser.add_argument("--known-drift", action="store_true",
                         help="give the estimator the front-end's drift rates too (default: estimated, as bimgraph must)")
-    parser.add_argument("--twin", action="store_true",
+    what = parser.add_mutually_exclusive_group()
+    what.add_argument("--twin", action="store_true",
                         help="give the faces built off plan too, where they were built: the bound of the run against "
                              "the plan as built (scripts/eval_deviations.py's twin)")
-    parser.add_argument("--faces", action="store_true",
+    what.add_argument("--faces", action="store_true",
                         help="bound each built face's offset instead (issue 8's deviations), every other face built "
                              "as planned given (exactly, or within --tolerance) and every face's direction given")
     parser.add_argument("--min-keyframes", type=int, default=3, help="with --faces: faces seen in fewer keyframes are left out "

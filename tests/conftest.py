@@ -1,5 +1,6 @@
-"""Shared fixtures: where the real IFC samples are, and whether their absence is allowed; the
-scripts' functions, for the tests of scripts."""
+"""Shared fixtures and helpers: where the real IFC samples are, and whether their absence is
+allowed; `load_script`, for the tests of `scripts/` (imported as `from conftest import ...`,
+as `sample_models` is)."""
 
 import importlib.util
 import os

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from bimgraph.config import Config
-from bimgraph.sequence.groundtruth import load_groundtruth
+from bimgraph.sequence.groundtruth import as_planned, load_groundtruth
 from bimgraph.sim.simulate import SimOptions, simulate
 from conftest import load_script
 
@@ -33,7 +33,7 @@ def test_face_bounds_cover_the_built_faces_seen_and_know_which_moved(bounds, sit
     for r in rows:
         face = truth[r["face"]]
         assert face["built"] and r["keyframes"] >= 3
-        assert r["moved"] == (not bounds.as_planned(face))
+        assert r["moved"] == (not as_planned(face))
         assert 1e-4 < r["sigma_m"] < 0.5  # between a tenth of a millimetre and half a metre
 
 
@@ -48,7 +48,8 @@ def test_trusting_the_sound_faces_less_never_tightens_a_bound(bounds, site):
     assert np.trace(placed_loose["cov_xy"]) >= np.trace(placed["cov_xy"]) * (1 - 1e-6)
     known_drift = bounds.bound(site, (0.0, 0.0), known_drift=True)
     assert np.trace(known_drift["cov_xy"]) <= np.trace(placed["cov_xy"]) * (1 + 1e-6)
-    # the plan moved to where the walls were built tells the estimator more, never less
+    # the plan moved to where the walls were built tells the estimator more, never less (here,
+    # where walls built off plan hold the walk, far more)
     twin = bounds.bound(site, (0.0, 0.0), known_drift=False, twin=True)
-    assert np.trace(twin["cov_xy"]) <= np.trace(placed["cov_xy"]) * (1 + 1e-6)
+    assert np.trace(twin["cov_xy"]) < 0.8 * np.trace(placed["cov_xy"])
     assert twin["yaw_deg"] <= placed["yaw_deg"] * (1 + 1e-6)

@@ -44,11 +44,16 @@ def test_polygon_with_hole():
     assert np.allclose(centre, [3.5 / 3, 0, 3.5 / 3])
 
 
+def face_with_hole() -> BimFace:
+    return BimFace(**{**HAND_MAP["faces"][0], "holes": [[[1, 5, 1], [2, 5, 1], [2, 5, 2], [1, 5, 2]]]})
+
+
 def test_face_moved_to_another_plane():
     """A wall built off plan: the face moved along its normal keeps its shape and holes; tilted
     about its centre, it keeps its centre."""
-    face = load_face_with_hole()
+    face = face_with_hole()
     moved = face.moved_to([0, -1, 0, 5.07])
+    assert face.moved_to([0, -2, 0, 10.14]) == moved  # (n, d) taken up to scale
     assert moved.area == pytest.approx(face.area)
     assert np.allclose(moved.centre, np.asarray(face.centre) + [0, 0.07, 0])
     assert np.allclose(np.asarray(moved.holes[0]) - face.holes[0], [0, 0.07, 0])
@@ -58,10 +63,6 @@ def test_face_moved_to_another_plane():
     assert np.allclose(np.asarray(tilted.polygon) @ n - n @ np.asarray(face.centre), 0.0)
     assert tilted.area == pytest.approx(face.area * np.cos(tilt))  # projected: the height foreshortened
     assert np.allclose(tilted.centre, face.centre)
-
-
-def load_face_with_hole():
-    return BimFace(**{**HAND_MAP["faces"][0], "holes": [[[1, 5, 1], [2, 5, 1], [2, 5, 2], [1, 5, 2]]]})
 
 
 @pytest.mark.parametrize(

@@ -8,6 +8,7 @@ docs/formats.md; `PlaneMap.model_json_schema()` gives it as JSON Schema.
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from functools import cached_property
 from pathlib import Path
 from typing import Literal
@@ -87,17 +88,21 @@ class BimFace(BaseModel):
         """(nx, ny, nz, d) as a numpy array."""
         return np.array([*self.normal, self.offset])
 
-    def moved_to(self, plane) -> BimFace:
-        """The face on another plane `(n, d)` (a wall built off plan): its polygon and holes
-        projected onto it, area and centre recomputed."""
-        n, d = np.asarray(plane[:3], dtype=float), float(plane[3])
+    def moved_to(self, plane: Sequence[float], polygon: list | None = None, holes: list | None = None) -> BimFace:
+        """The face on another plane `(n, d)` (a wall built off plan), with area and centre
+        recomputed: its outline `polygon` and `holes` where given (as built), else its own
+        projected onto the plane."""
+        scale = float(np.linalg.norm(plane[:3]))
+        n, d = np.asarray(plane[:3], dtype=float) / scale, float(plane[3]) / scale
 
         def project(ring):
             points = np.asarray(ring, dtype=float)
             return [tuple(p) for p in points - np.outer(points @ n + d, n)]
 
-        return BimFace(**{**self.model_dump(), "normal": tuple(n), "offset": d, "polygon": project(self.polygon),
-                          "holes": [project(h) for h in self.holes], "area": None, "centre": None})
+        return BimFace(**{**self.model_dump(), "normal": tuple(n), "offset": d,
+                          "polygon": project(self.polygon if polygon is None else polygon),
+                          "holes": [project(h) for h in (self.holes if holes is None else holes)],
+                          "area": None, "centre": None})
 
 
 class PlaneMap(BaseModel):

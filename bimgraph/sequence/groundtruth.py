@@ -75,6 +75,11 @@ class GroundTruth:
         return self.observations[keyframe][plane]["face_id"]
 
 
+def as_planned(face: dict) -> bool:
+    """Whether an `as_built.json` face record was built, and built exactly as planned."""
+    return face["built"] and np.allclose(face["plane_planned"], face["plane_as_built"], rtol=0.0, atol=1e-9)
+
+
 def rounded(x, digits: int = 9):
     """Floats rounded for writing: files stay short, their bytes do not hang on the last ulp,
     and -0.0 becomes 0.0. A scalar stays a scalar, anything else becomes a flat list."""

@@ -11,11 +11,11 @@ where the walls were built (`twin_*`, and the `twin_*_ratio` columns): the compa
 deviations alone change, as the synthetic world's. `--clean` adds the same scenarios and seeds
 simulated without deviations (`clean_*` and the other ratios): a comparison that the two runs'
 independent sensor noise also changes (the simulator draws it anew where the world differs).
-`--synthetic` uses the backend's synthetic rooms (`bimgraph.backend.synthetic`), with
-a share of faces moved 5-10 cm and a share not built (their observations removed); there
-`clean_*` is the world as planned and `nodev_*` the same missing walls without deviations,
-and the ratios (extrinsic cm and deg, ATE) are against the latter. `--oracle` gives the backend the true associations, to
-measure the deviation step apart from the association. `--gnc` / `--no-gnc` override
+`--synthetic` uses the backend's synthetic rooms (`bimgraph.backend.synthetic`), with a share
+of faces moved 5-10 cm and a share not built (their observations removed); there `clean_*` is
+the world as planned and `nodev_*` the same missing walls without deviations, and the ratios
+(extrinsic cm and deg, ATE) are against the latter. `--oracle` gives the backend the true
+associations, to measure the deviation step apart from the association. `--gnc` / `--no-gnc` override
 `backend.offline.gnc` (the robust alignment: graduated non-convexity judges which plane-to-BIM
 factors the alignment keeps) in every run. `not_kept` counts the faces whose factor GNC did not
 keep whole, `not_kept_true` those of them truly off plan beyond the tolerance.

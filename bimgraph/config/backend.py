@@ -22,7 +22,7 @@ class NoiseConfig(Section):
     plane_kernel_width: float = Field(2.0, gt=0, description="kernel width of plane observations, in sigmas")
     bim_normal_deg: float = Field(1.0, gt=0, description="plane-to-BIM factor: how far an as-built wall's normal strays from plan (a tilt about the face's centre)")
     bim_offset_m: float = Field(0.01, gt=0, description="plane-to-BIM factor: how far an as-built wall's offset, at the face's centre, strays from plan (one sigma: the common +/-2 cm wall tolerance as a 95 % bound, so that the robust alignment keeps whole only walls within about 3.4 cm of plan; at 1.5 cm it kept walls built 3-5 cm off, which pulled the poses)")
-    bim_kernel: str = Field("cauchy", pattern="^(none|huber|cauchy)$", description="robust kernel on plane-to-BIM factors (a Gaussian one lets one wrong match move the extrinsic)")
+    bim_kernel: str = Field("cauchy", pattern="^(none|huber|cauchy)$", description="robust kernel on plane-to-BIM factors until the robust alignment has judged them (offline; online with isam2.judge_every), Gaussian after (a Gaussian one before lets one wrong match move the extrinsic)")
     bim_kernel_width: float = Field(1.0, gt=0, description="kernel width of plane-to-BIM factors, in sigmas")
     gravity_deg: float = Field(0.1, gt=0, description="gravity-aligned sequences: error of the front-end's up direction in every keyframe (attitude factors), and of T_B_S's tilt (S and B both have z up)")
     extrinsic_rot_deg: float = Field(2.0, gt=0, description="prior on T_B_S when the sequence gives no initial alignment uncertainty (rotation)")

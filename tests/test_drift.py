@@ -1,5 +1,7 @@
 """The front-end's drift rates: measured from the smoothed poses, taken out of the odometry."""
 
+import functools
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -71,7 +73,9 @@ def biased_scene():
     return scene, keyframes
 
 
+@functools.cache
 def _offline_on_the_biased_scene(estimate_drift: bool):
+    """(estimator, results, ATE) of the offline run on `biased_scene`, once per setting for both tests."""
     scene, keyframes = biased_scene()
     cfg = BackendConfig()
     cfg.offline.estimate_drift = estimate_drift
@@ -101,11 +105,13 @@ def test_offline_measures_the_drift():
 @pytest.mark.xfail(strict=True, reason="known defect (docs/experiments.md, fourteenth session): in this "
                    "short walk without gravity the drift fit settles at 82 % of the yaw rate, the odometry "
                    "noise estimate then stiffens the walk to the front-end's true noise, and two sound walls "
-                   "are judged out: ATE 4.6 cm, against 1.4 cm without the drift estimate (4.1 against 7.2 "
-                   "cm, four walls out, while the judged walls kept their Cauchy kernel)")
-def test_offline_removing_the_drift_improves_the_trajectory():
+                   "are judged out: ATE 4.6 cm with the drift estimated, 1.4 cm without (both 1.3-1.4 cm "
+                   "without the noise estimate)")
+def test_offline_drift_estimate_does_not_cost_the_trajectory():
+    """Where the walls alone already place the walk (1.4 cm), measuring and removing the drift
+    must not make it worse."""
     errors = {estimate: _offline_on_the_biased_scene(estimate)[2] for estimate in (True, False)}
-    assert errors[True] < 0.8 * errors[False], errors
+    assert errors[True] <= 1.1 * errors[False], errors
 
 
 @pytest.mark.parametrize("shares, fits, rtol", [

@@ -3,15 +3,18 @@
 For each sequence: association precision and recall against the true face of every
 observation, extrinsic error (deg, cm), ATE of `T_B_C` without re-alignment, for online (at
 the last keyframe / causal trajectory), offline, and offline given the true associations
-(oracle); plus the ATE of the raw front-end placed with the initial alignment.
+(oracle); plus the ATE of the raw front-end placed with the initial alignment. Over several
+sequences, a summary per mode: the spread of one walk's error is about the size of the
+differences between settings, so compare settings over many seeds.
 
-    python scripts/eval_backend.py SEQDIR [SEQDIR ...] [--config FILE]
+    python scripts/eval_backend.py SEQDIR [SEQDIR ...] [--config FILE] [--mode offline ...]
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import statistics
 import time
 from pathlib import Path
 
@@ -23,7 +26,10 @@ from bimgraph.sequence.format import load_sequence
 from bimgraph.sequence.groundtruth import load_groundtruth
 
 
-def evaluate(root: Path, cfg) -> list[dict]:
+MODES = ("online", "offline", "oracle")
+
+
+def evaluate(root: Path, cfg, modes=MODES) -> list[dict]:
     sequence = load_sequence(root)
     plane_map = load_model(model_path(root, sequence.meta, None), cfg)
     initial = initial_alignment(sequence.meta, cfg)
@@ -31,7 +37,7 @@ def evaluate(root: Path, cfg) -> list[dict]:
     truth = oracle_of(root)
     frontend = ate([initial.T_B_S @ kf.pose for kf in sequence.keyframes], gt.T_B_C)
     rows = []
-    for mode in ("online", "offline", "oracle"):
+    for mode in modes:
         start = time.perf_counter()
         if mode == "online":
             results = run_online(sequence.keyframes, plane_map, cfg.backend, initial)
@@ -47,6 +53,19 @@ def evaluate(root: Path, cfg) -> list[dict]:
     return rows
 
 
+def summary(rows: list[dict]) -> dict:
+    """Over the rows of one mode: RMS and median extrinsic position error (cm), how many within
+    1 and 2 cm, RMS angle error (deg), RMS ATE (cm)."""
+    cm, deg, ate_cm = ([r[k] for r in rows] for k in ("trans_cm", "rot_deg", "ate_cm"))
+    return {"n": len(rows), "rms_cm": _rms(cm), "median_cm": statistics.median(cm),
+            "within_1cm": sum(v <= 1.0 for v in cm), "within_2cm": sum(v <= 2.0 for v in cm),
+            "rms_deg": _rms(deg), "rms_ate_cm": _rms(ate_cm)}
+
+
+def _rms(values: list[float]) -> float:
+    return math.sqrt(sum(v * v for v in values) / len(values))
+
+
 def tolerance(value) -> str:
     return "" if value is None else f"{math.degrees(value[0]):.2f}, {1000 * value[1]:.1f}"
 
@@ -55,14 +74,26 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("sequences", type=Path, nargs="+")
     parser.add_argument("--config", type=Path, default=None)
+    parser.add_argument("--mode", action="append", choices=MODES, dest="modes",
+                        help="run only this mode (repeat for several; default: all three)")
     args = parser.parse_args()
+    args.modes = args.modes or list(MODES)
     cfg = load_config(args.config)
     print("| sequence | mode | precision | recall | T_B_S error deg | cm | ATE cm | front-end ATE cm | s | wall tolerance deg, mm | unobservable |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
+    rows = []
     for root in args.sequences:
-        for r in evaluate(root, cfg):
+        for r in evaluate(root, cfg, args.modes):
+            rows.append(r)
             print(f"| {r['sequence']} | {r['mode']} | {r['precision']:.4f} | {r['recall']:.4f} | {r['rot_deg']:.3f} | {r['trans_cm']:.2f} "
                   f"| {r['ate_cm']:.2f} | {r['frontend_ate_cm']:.1f} | {r['seconds']:.1f} | {tolerance(r['tolerance'])} | {' '.join(r['unobservable'])} |", flush=True)
+    if len(args.sequences) > 1:
+        print("\n| mode | sequences | T_B_S error RMS cm | median cm | within 1 cm | within 2 cm | RMS deg | ATE RMS cm |")
+        print("|---|---|---|---|---|---|---|---|")
+        for mode in args.modes:
+            m = summary([r for r in rows if r["mode"] == mode])
+            print(f"| {mode} | {m['n']} | {m['rms_cm']:.2f} | {m['median_cm']:.2f} | {m['within_1cm']} | {m['within_2cm']} "
+                  f"| {m['rms_deg']:.3f} | {m['rms_ate_cm']:.2f} |")
 
 
 if __name__ == "__main__":

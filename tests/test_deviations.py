@@ -251,6 +251,31 @@ def test_expected_in_view_by_ray_casting():
     assert counts["east-face"] == 0
 
 
+def test_walls_of_another_storey_are_not_in_view_through_the_floor():
+    """A camera in the room looks down toward a wall of the storey below: a map of walls alone
+    gets a floor at each storey's elevation, which hides it (before, such walls of every
+    other storey were listed as possibly not built); a map with slab faces is taken as it
+    is, so the wall is seen through the slab's stairwell and hidden where the slab has none."""
+    below = BimFace(id="below", wall_guid="0K1h3Qe3j8Nuv5bzvOkWdm", storey="basement", elevation=-3.0,
+                    normal=(-1, 0, 0), offset=4.0, polygon=[(4, 0, -3), (4, 4, -3), (4, 4, 0), (4, 0, 0)])
+    walls = [f.model_copy(update={"storey": "ground"}) for f in room().faces]
+    pitch = np.radians(-40.0)  # down, about the camera's x axis
+    tilt = np.array([[1, 0, 0], [0, np.cos(pitch), -np.sin(pitch)], [0, np.sin(pitch), np.cos(pitch)]])
+    T = camera_looking((1.5, 2.0, 1.25), 0.0)
+    T[:3, :3] = T[:3, :3] @ tilt
+    assert T[2, 2] < -0.5  # looking down
+    T_B_C = np.stack([T] * 3)
+    assert expected_view_counts(PlaneMap(faces=walls + [below]), T_B_C, K, 640, 480, CFG)["below"] == 0
+
+    def floor(holes):
+        return BimFace(id="floor", wall_guid="1hOSvn6df7F8_7GcBWlRGR", kind="slab_top", storey="ground", normal=(0, 0, 1),
+                       offset=0.0, polygon=[(0, 0, 0), (6, 0, 0), (6, 4, 0), (0, 4, 0)], holes=holes)
+
+    stairwell = [(2.5, 0.5, 0), (3.9, 0.5, 0), (3.9, 3.5, 0), (2.5, 3.5, 0)]
+    assert expected_view_counts(PlaneMap(faces=walls + [below, floor([stairwell])]), T_B_C, K, 640, 480, CFG)["below"] == 3
+    assert expected_view_counts(PlaneMap(faces=walls + [below, floor([])]), T_B_C, K, 640, 480, CFG)["below"] == 0
+
+
 def test_a_face_in_view_never_observed_is_possibly_not_built():
     """Looking at the north wall from the room's south side for six keyframes, with landmarks
     for the other walls only."""

@@ -308,6 +308,26 @@ def test_one_landmark_measures_every_face_of_its_wall_plane():
     assert report.unplanned == []
 
 
+def test_a_landmark_does_not_measure_the_face_hidden_behind_its_own():
+    """A furring wall 15 cm in front of a party wall's face (as in the Duplex sample model):
+    the landmark the graph matched to the furring's face measures it, not the party wall's
+    face behind it, which it also passes the proximity tests of; unmatched, it measures
+    both, as a wall built far off plan must be measured by proximity."""
+    party = BimFace(id="party", wall_guid=GUIDS["south"], normal=(0, 1, 0), offset=0.0,
+                    polygon=[(0, 0, 0), (6, 0, 0), (6, 0, 2.5), (0, 0, 2.5)])
+    furring = BimFace(id="furring", wall_guid=GUIDS["north"], normal=(0, 1, 0), offset=-0.15,
+                      polygon=[(0, 0.15, 0), (6, 0.15, 0), (6, 0.15, 2.5), (0, 0.15, 2.5)])
+    plane_map = PlaneMap(faces=[party, furring])
+    extent = rectangle(1, 0.15, (0.5, 0.2), (5.5, 2.3))
+    matched = observed(0, as_built_plane(furring, 0.0), face_id="furring", extent_B=extent, area_m2=10.5)
+    report = assess(plane_map, [matched], T_S_B, CFG)
+    assert [f.face_id for f in report.faces] == ["furring"]
+    assert report.faces[0].status == "within_tolerance"
+    unmatched = observed(0, as_built_plane(furring, 0.0), extent_B=extent, area_m2=10.5)
+    by_face = {f.face_id: f for f in assess(plane_map, [unmatched], T_S_B, CFG).faces}
+    assert by_face["party"].deviation.offset_m == pytest.approx(0.15, abs=1e-3)
+
+
 
 def test_joint_marginals_at_once_equal_gtsams_one_by_one():
     """The offline estimator's joint marginals (one marginalisation onto all the keys asked

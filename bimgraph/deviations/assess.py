@@ -42,20 +42,36 @@ def _overlap(face_2d, points_B: np.ndarray, cfg: DeviationConfig) -> bool:
     return len(xy) > 0 and shape.distance(shapely.Point(xy.mean(axis=0))) <= cfg.match_margin_m
 
 
+def coplanar_in_plan(a: BimFace, b: BimFace, cfg: DeviationConfig) -> bool:
+    """Whether the plan puts face `b` on face `a`'s plane: every corner of `b` within
+    `plan_coplanar_m` of it, on its side (one wall's faces in neighbouring rooms)."""
+    if normal_angle_deg(np.asarray(a.normal), np.asarray(b.normal)) > 90.0:
+        return False
+    return bool((np.abs(point_plane_distance(np.asarray(b.polygon, dtype=float), a.plane)) <= cfg.plan_coplanar_m).all())
+
+
 def proximity_candidates(faces: Sequence[BimFace], planes: Sequence[ObservedPlane], T_S_B: np.ndarray,
                          cfg: DeviationConfig) -> dict[str, list[ObservedPlane]]:
     """For each face, every plane that is tilted less than `match_max_tilt_deg` from it, passes
     within `match_max_offset_m` of its centre and overlaps it (`_overlap`). A plane may serve
-    several faces: one wall plane spans the coplanar faces of neighbouring rooms."""
+    several faces: one wall plane spans the coplanar faces of neighbouring rooms. A plane the
+    graph matched to a face serves only the faces the plan puts on that face's plane: a face
+    a few centimetres behind it (a party wall behind its furring) is hidden by it, and was
+    measured as deviating by the furring's distance (a walk through the Duplex sample model:
+    two sound faces flagged 6.7 and 15.1 cm off)."""
     T_B_S = inverse(T_S_B)
     shapes = {face.id: face_shape(face) for face in faces}
+    by_id = {face.id: face for face in faces}
     candidates: dict[str, list[ObservedPlane]] = {}
     for plane in planes:
         extent_B = plane.extent_in(T_B_S)
         if len(extent_B) == 0:
             continue
         plane_B = plane_to_frame(plane.plane_S(), T_S_B)
+        matched = by_id.get(plane.face_id)
         for face in faces:
+            if matched is not None and not coplanar_in_plan(matched, face, cfg):
+                continue
             if (normal_angle_deg(plane_B[:3], np.asarray(face.normal)) <= cfg.match_max_tilt_deg
                     and abs(float(point_plane_distance(np.asarray(face.centre), plane_B))) <= cfg.match_max_offset_m
                     and _overlap(shapes[face.id], extent_B, cfg)):

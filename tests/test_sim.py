@@ -315,6 +315,7 @@ def test_ifc_without_walls_fails_in_one_line(tmp_path):
 def test_shared_ifc_model(tmp_path, ifc_samples):
     """A user's model: referenced by path, walked over its floor slab, faces from its import."""
     from bimgraph.bim.ifc_import import import_ifc
+    from bimgraph.deviations.visibility import expected_view_counts
 
     model = ifc_samples / "AC20-FZK-Haus.ifc"
     root = tmp_path / "fzk"
@@ -329,6 +330,15 @@ def test_shared_ifc_model(tmp_path, ifc_samples):
     # Over the ground floor slab (0..12 x 0..10 m in this model), not outside.
     xy = gt.T_B_C[:, :2, 3]
     assert np.all((xy > -0.1) & (xy < [12.1, 10.1]))
+    # Walls of the storey above are not in view through the ceiling (the model's map has no
+    # slabs): before the report put floors at the storeys' elevations, two faces of the roof
+    # storey were, at 9 and 10 of these 60 keyframes, and possibly not built
+    cam = seq.meta.camera
+    K = np.array([[cam.fx, 0, cam.cx], [0, cam.fy, cam.cy], [0, 0, 1]])
+    counts = expected_view_counts(plane_map, gt.T_B_C, K, cam.width, cam.height, Config().deviations)
+    storeys = {face.id: face.storey for face in plane_map.faces}
+    assert any(counts.values())
+    assert all(storeys[face] == gt.as_built["storey"]["name"] for face, n in counts.items() if n)
 
 
 def test_over_segmentation_splits_a_surface_in_two(office):

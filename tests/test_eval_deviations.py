@@ -39,3 +39,18 @@ def test_twin_has_exactly_the_faces_built_off_plan_as_built(script, tmp_path):
         assert np.allclose(built.polygon, elements[planned.id]["polygon"], atol=1e-6)
         assert len(built.holes) == len(elements[planned.id]["holes"])
     assert moved > 0 and tilted > 0  # the default site builds faces off plan, some tilted
+
+
+def test_a_face_of_another_storey_counts_as_built(script):
+    """The simulator's truth covers the walked storey's faces; a face of another storey that
+    the report lists (possibly not built) is a false alarm, not a crash (a walk through the
+    Duplex sample model, before floors hid other storeys, stopped the evaluation)."""
+    from bimgraph.config import DeviationConfig
+    from bimgraph.deviations.estimate import DeviationReport, FaceReport
+
+    report = DeviationReport(0.02, 0.5, 3.0, faces=[
+        FaceReport("gone", "g1", "", "ground", "possibly_not_built"),
+        FaceReport("upstairs", "g2", "", "first", "possibly_not_built")])
+    scores = script.score(report, {"gone": (0.0, 0.0, False), "kept": (0.0, 0.0, True)}, DeviationConfig())
+    assert scores["faces"] == 2 and scores["not_built_flagged"] == 2
+    assert scores["not_built_precision"] == 0.5 and scores["not_built_recall"] == 1.0

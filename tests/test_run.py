@@ -290,3 +290,25 @@ def test_bad_input_or_output_is_one_line(world, tmp_path, case, exit_code):
     result = run(seq, "-o", out)
     assert_one_line_error(result, exit_code)
     assert out.is_file() if case == "output_is_a_file" else not out.exists()
+
+
+@pytest.mark.parametrize("depth", [False, True])
+def test_a_sequence_without_plane_detections_is_one_line(world, tmp_path, depth):
+    """Run, it would place nothing and list every face in view as possibly not built; a depth
+    sequence whose planes were not detected yet is told how to detect them."""
+    _, root = world
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    for name in ("sequence.json", "planes.json"):
+        (seq / name).write_text((root / name).read_text())
+    lines = []
+    for line in (root / "keyframes.jsonl").read_text().splitlines():
+        data = {**json.loads(line), "planes": []}
+        if depth:
+            data["depth"] = f"depth/{data['index']}.png"
+        lines.append(json.dumps(data))
+    (seq / "keyframes.jsonl").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    message = assert_one_line_error(run(seq, "-o", out), 2, "no keyframe has a plane detection")
+    assert ("bimgraph planes" in message) == depth
+    assert not out.exists()

@@ -310,9 +310,10 @@ def test_one_landmark_measures_every_face_of_its_wall_plane():
 
 def test_a_landmark_does_not_measure_the_face_hidden_behind_its_own():
     """A furring wall 15 cm in front of a party wall's face (as in the Duplex sample model):
-    the landmark the graph matched to the furring's face measures it, not the party wall's
-    face behind it, which it also passes the proximity tests of; unmatched, it measures
-    both, as a wall built far off plan must be measured by proximity."""
+    the landmark on the furring's face measures it, not the party wall's face behind it,
+    which it also passes the proximity tests of, whether the graph matched it to the furring
+    or not; without the furring in the plan, it measures the party wall by proximity, as a
+    wall built far off plan must be measured."""
     party = BimFace(id="party", wall_guid=GUIDS["south"], normal=(0, 1, 0), offset=0.0,
                     polygon=[(0, 0, 0), (6, 0, 0), (6, 0, 2.5), (0, 0, 2.5)])
     furring = BimFace(id="furring", wall_guid=GUIDS["north"], normal=(0, 1, 0), offset=-0.15,
@@ -324,8 +325,10 @@ def test_a_landmark_does_not_measure_the_face_hidden_behind_its_own():
     assert [f.face_id for f in report.faces] == ["furring"]
     assert report.faces[0].status == "within_tolerance"
     unmatched = observed(0, as_built_plane(furring, 0.0), extent_B=extent, area_m2=10.5)
-    by_face = {f.face_id: f for f in assess(plane_map, [unmatched], T_S_B, CFG).faces}
-    assert by_face["party"].deviation.offset_m == pytest.approx(0.15, abs=1e-3)
+    (measured,) = assess(plane_map, [unmatched], T_S_B, CFG).faces
+    assert measured.face_id == "furring" and measured.matched_by == "proximity"
+    (measured,) = assess(PlaneMap(faces=[party]), [unmatched], T_S_B, CFG).faces
+    assert measured.face_id == "party" and measured.deviation.offset_m == pytest.approx(0.15, abs=1e-3)
 
 
 

@@ -53,12 +53,12 @@ def coplanar_in_plan(a: BimFace, b: BimFace, cfg: DeviationConfig) -> bool:
 def proximity_candidates(faces: Sequence[BimFace], planes: Sequence[ObservedPlane], T_S_B: np.ndarray,
                          cfg: DeviationConfig) -> dict[str, list[ObservedPlane]]:
     """For each face, every plane that is tilted less than `match_max_tilt_deg` from it, passes
-    within `match_max_offset_m` of its centre and overlaps it (`_overlap`). A plane may serve
-    several faces: one wall plane spans the coplanar faces of neighbouring rooms. A plane the
-    graph matched to a face serves only the faces the plan puts on that face's plane: a face
-    a few centimetres behind it (a party wall behind its furring) is hidden by it, and was
-    measured as deviating by the furring's distance (a walk through the Duplex sample model:
-    two sound faces flagged 6.7 and 15.1 cm off)."""
+    within `match_max_offset_m` of its centre and overlaps it (`_overlap`), and lies on it
+    rather than on another face: a plane serves the faces the plan puts on one plane with its
+    own face (the one the graph matched it to, else the nearest of those it passes), one wall's
+    sections in neighbouring rooms, not a face a few centimetres behind (a party wall behind its
+    furring is hidden by it; walks through the Duplex sample model flagged three such sound
+    faces 6.7-15.9 cm off)."""
     T_B_S = inverse(T_S_B)
     shapes = {face.id: face_shape(face) for face in faces}
     by_id = {face.id: face for face in faces}
@@ -68,13 +68,13 @@ def proximity_candidates(faces: Sequence[BimFace], planes: Sequence[ObservedPlan
         if len(extent_B) == 0:
             continue
         plane_B = plane_to_frame(plane.plane_S(), T_S_B)
-        matched = by_id.get(plane.face_id)
-        for face in faces:
-            if matched is not None and not coplanar_in_plan(matched, face, cfg):
-                continue
-            if (normal_angle_deg(plane_B[:3], np.asarray(face.normal)) <= cfg.match_max_tilt_deg
-                    and abs(float(point_plane_distance(np.asarray(face.centre), plane_B))) <= cfg.match_max_offset_m
-                    and _overlap(shapes[face.id], extent_B, cfg)):
+        distance = {face.id: abs(float(point_plane_distance(np.asarray(face.centre), plane_B))) for face in faces}
+        near = [face for face in faces
+                if normal_angle_deg(plane_B[:3], np.asarray(face.normal)) <= cfg.match_max_tilt_deg
+                and distance[face.id] <= cfg.match_max_offset_m and _overlap(shapes[face.id], extent_B, cfg)]
+        own = by_id.get(plane.face_id) or min(near, key=lambda face: distance[face.id], default=None)
+        for face in near:
+            if coplanar_in_plan(own, face, cfg):
                 candidates.setdefault(face.id, []).append(plane)
     return candidates
 

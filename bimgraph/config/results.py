@@ -22,7 +22,7 @@ class DeviationConfig(Section):
     match_max_tilt_deg: float = Field(5.0, gt=0, description="...is tilted less than this from it...")
     match_min_overlap_m2: float = Field(0.25, ge=0, description="...and its extent overlaps the face by at least this much...")
     match_margin_m: float = Field(0.3, ge=0, description="...or, for a landmark without an extent polygon, its centre lies within this of the face")
-    plan_coplanar_m: float = Field(0.02, gt=0, description="a landmark the graph matched to a face measures, of the other faces, only those the plan puts on that face's plane (every corner within this of it): not a face hidden behind it, as a party wall behind its furring")
+    plan_coplanar_m: float = Field(0.02, gt=0, description="...and a landmark measures, of the faces it passes, only those the plan puts on one plane with its own (the face the graph matched it to, else the nearest it passes; every corner within this of that plane): not a face hidden behind it, as a party wall behind its furring")
     unplanned_min_area_m2: float = Field(1.0, ge=0, description="unmatched landmarks at least this large are reported as unplanned")
     unplanned_vertical_only: bool = Field(True, description="only near-vertical unmatched planes count as unplanned (floors and ceilings are not walls)")
     vertical_tolerance_deg: float = Field(10.0, gt=0, description="a plane is vertical if its normal is within this of horizontal")

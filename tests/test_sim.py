@@ -327,6 +327,9 @@ def test_shared_ifc_model(tmp_path, ifc_samples):
     assert faces and faces <= set(plane_map.index)
     floor_z = gt.as_built["storey"]["floor_z"]
     assert np.all(gt.T_B_C[:, 2, 3] - floor_z >= 1.2 - 1e-9)
+    # the ceiling under the slab above (its underside at 2.5 m), not at the walls' tops (2.7 m:
+    # they run up through the slab)
+    assert gt.as_built["storey"]["ceiling_z"] == pytest.approx(2.5)
     # Over the ground floor slab (0..12 x 0..10 m in this model), not outside.
     xy = gt.T_B_C[:, :2, 3]
     assert np.all((xy > -0.1) & (xy < [12.1, 10.1]))

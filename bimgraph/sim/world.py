@@ -26,6 +26,8 @@ UP = np.array([0.0, 0.0, 1.0])
 GROUND_MARGIN_M = 10.0
 # A slab top this close to the storey's elevation is its floor.
 FLOOR_TOL_M = 0.3
+# The least height between floor and ceiling of a storey to walk.
+MIN_HEADROOM_M = 2.0
 
 
 @dataclass
@@ -88,7 +90,10 @@ class Storey:
 
 def pick_storey(plane_map: PlaneMap, name: str = "") -> Storey:
     """The named storey, or the one with the most wall area. Its floor is the storey's
-    elevation; its ceiling the median top of its walls (gables and parapets stick out above)."""
+    elevation; its ceiling the median top of its walls (gables and parapets stick out above),
+    or the underside of a slab below that, where the walls run up through the slab to the
+    next storey (AC20-FZK-Haus: 2.5 m, not 2.7; a run given the slabs matched the ceiling to
+    the plan and put the floor, and the walk, 20 cm off)."""
     walls = plane_map.walls()
     if not walls:
         raise InputError(f"{plane_map.source or 'the model'}: no wall faces, nothing to walk through")
@@ -101,8 +106,10 @@ def pick_storey(plane_map: PlaneMap, name: str = "") -> Storey:
     own = [f for f in walls if f.storey == name]
     floor_z = float(np.median([f.elevation for f in own]))
     ceiling_z = float(np.median([np.asarray(f.polygon)[:, 2].max() for f in own]))
-    if ceiling_z - floor_z < 2.0:
+    if ceiling_z - floor_z < MIN_HEADROOM_M:
         raise InputError(f"storey {name!r}: walls only {ceiling_z - floor_z:.2f} m high, too low to walk")
+    undersides = [float(np.mean(np.asarray(f.polygon)[:, 2])) for f in plane_map.faces if f.kind == "slab_bottom"]
+    ceiling_z = min([z for z in undersides if floor_z + MIN_HEADROOM_M <= z < ceiling_z], default=ceiling_z)
     faces = []
     for f in plane_map.faces:
         z = np.asarray(f.polygon)[:, 2]

@@ -71,7 +71,8 @@ def score(data, truth, cfg: DeviationConfig) -> dict:
     precision/recall. `truth[face] = (offset at centre, tilt deg, built)`; a face it lacks (of
     a storey the simulator did not walk) stands as built as planned."""
     enough = [f for f in data.faces if f.status in ("deviating", "within_tolerance")]
-    walked, truth = truth, {f.face_id: (0.0, 0.0, True) for f in data.faces} | truth
+    n_faces = len(truth)
+    truth = {f.face_id: (0.0, 0.0, True) for f in data.faces} | truth
 
     def gt_deviating(face_id):
         off, tilt, built = truth[face_id]
@@ -84,7 +85,7 @@ def score(data, truth, cfg: DeviationConfig) -> dict:
     not_built = [f for f in data.faces if f.status == "possibly_not_built"]
     missing = [k for k, v in truth.items() if not v[2]]
     return {
-        "faces": len(walked), "observed": sum(f.status != "possibly_not_built" for f in data.faces),
+        "faces": n_faces, "observed": sum(f.status != "possibly_not_built" for f in data.faces),
         "enough": len(enough), "flagged": len(flagged), "true_deviating_enough": positives,
         "precision": tp / len(flagged) if flagged else 1.0, "recall": tp / positives if positives else 1.0,
         "offset_within_1cm": float(np.mean(errors <= 0.01)) if len(errors) else float("nan"),

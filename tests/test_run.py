@@ -294,8 +294,8 @@ def test_bad_input_or_output_is_one_line(world, tmp_path, case, exit_code):
 
 @pytest.mark.parametrize("depth", [False, True])
 def test_a_sequence_without_plane_detections_is_one_line(world, tmp_path, depth):
-    """Run, it would place nothing and list every face in view as possibly not built; a depth
-    sequence whose planes were not detected yet is told how to detect them."""
+    """Run anyway, it would place nothing and list every face in view as possibly not built; a
+    depth sequence whose planes were not detected yet is told how to detect them."""
     _, root = world
     seq = tmp_path / "seq"
     seq.mkdir()

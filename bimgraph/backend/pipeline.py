@@ -160,7 +160,7 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
     if not sequence.keyframes:
         raise InputError(f"{seq_dir}: the sequence has no keyframes")
     if not any(kf.planes for kf in sequence.keyframes):
-        # (run, it would place nothing and list every face in view as possibly not built)
+        # (run anyway, it would place nothing and list every face in view as possibly not built)
         hint = (f": detect them in its depth images first, with `bimgraph planes {seq_dir}`"
                 if any(kf.depth for kf in sequence.keyframes) else "")
         raise InputError(f"{seq_dir}: no keyframe has a plane detection{hint}")

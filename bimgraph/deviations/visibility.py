@@ -63,17 +63,22 @@ def sample_faces(faces: Sequence[BimFace], grid_m: float) -> FaceSamples:
 
 
 def storey_floors(faces: Sequence[BimFace], margin_m: float) -> list[np.ndarray]:
-    """Where the map has no slab faces: a horizontal rectangle (4 x 3 corners) at each storey's
-    elevation, over the map's extent grown by `margin_m`. Without them every wall of the
-    storeys above and below is in view through the floor and the ceiling (measured on walks
-    through the four sample models: 4-12 faces of other storeys expected in view each, all
-    of them listed as possibly not built). A double-height room loses what lies above its
-    upper storey's elevation, erring toward "not expected" as the rest of the test does."""
-    if not faces or any(face.kind != "wall" for face in faces):
+    """Where the map has no slab faces and several storeys: a horizontal rectangle (4 x 3
+    corners) at each storey's elevation, over the map's extent grown by `margin_m`. Without
+    them every wall of the storeys above and below is in view through the floor and the
+    ceiling (walks through the sample models: 4-19 faces of other storeys expected in view,
+    each listed as possibly not built). A double-height room loses what lies above its upper
+    storey's elevation, erring toward "not expected" as the rest of the test does. A map of one
+    storey, or faces without one (a hand-written map), get none: a floor there would be
+    invented."""
+    if any(face.kind != "wall" for face in faces):
+        return []
+    elevations = {face.storey: face.elevation for face in faces if face.storey}
+    if len(elevations) < 2:
         return []
     corners = np.concatenate([np.asarray(face.polygon, dtype=float) for face in faces])
     (x0, y0), (x1, y1) = corners[:, :2].min(axis=0) - margin_m, corners[:, :2].max(axis=0) + margin_m
-    return [np.array([(x0, y0, z), (x1, y0, z), (x1, y1, z), (x0, y1, z)]) for z in sorted({face.elevation for face in faces})]
+    return [np.array([(x0, y0, z), (x1, y0, z), (x1, y1, z), (x0, y1, z)]) for z in sorted(set(elevations.values()))]
 
 
 def _scene(faces: Sequence[BimFace], margin_m: float) -> o3d.t.geometry.RaycastingScene:
@@ -93,6 +98,7 @@ def expected_view_counts(plane_map: PlaneMap, T_B_C: np.ndarray, K: np.ndarray, 
     faces = plane_map.faces
     samples = sample_faces(faces, cfg.visibility_grid_m)
     normals = np.asarray([f.normal for f in faces])[samples.face]
+    # (floors beyond the map by the range: a camera farther out sees nothing of it anyway)
     scene = _scene(faces, cfg.visibility_max_range_m)
     cos_max = np.cos(np.radians(cfg.visibility_max_obliquity_deg))
     counts = np.zeros(len(faces), dtype=int)

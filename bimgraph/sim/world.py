@@ -108,8 +108,10 @@ def pick_storey(plane_map: PlaneMap, name: str = "") -> Storey:
     ceiling_z = float(np.median([np.asarray(f.polygon)[:, 2].max() for f in own]))
     if ceiling_z - floor_z < MIN_HEADROOM_M:
         raise InputError(f"storey {name!r}: walls only {ceiling_z - floor_z:.2f} m high, too low to walk")
-    undersides = [float(np.mean(np.asarray(f.polygon)[:, 2])) for f in plane_map.faces if f.kind == "slab_bottom"]
-    ceiling_z = min([z for z in undersides if floor_z + MIN_HEADROOM_M <= z < ceiling_z], default=ceiling_z)
+    # the largest such slab, not a landing's or a canopy's
+    undersides = [(f.area, float(np.mean(np.asarray(f.polygon)[:, 2]))) for f in plane_map.faces if f.kind == "slab_bottom"]
+    ceiling_z = max([(area, z) for area, z in undersides if floor_z + MIN_HEADROOM_M <= z < ceiling_z],
+                    default=(0.0, ceiling_z))[1]
     faces = []
     for f in plane_map.faces:
         z = np.asarray(f.polygon)[:, 2]

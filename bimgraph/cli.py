@@ -204,6 +204,7 @@ def simulate(
     output: Path = typer.Option(..., "--output", "-o", help="The sequence folder to write."),
     scenario: Optional[str] = typer.Option(None, "--scenario", help="Generated building: office or site (default office)."),
     ifc: Optional[Path] = typer.Option(None, "--ifc", help="Walk through this IFC model instead of a generated one."),
+    storey: Optional[str] = typer.Option(None, "--storey", help="The model's storey to walk, by name (default: the one with the most wall area; sim.storey)."),
     sensor: str = typer.Option("planes", "--sensor", help="planes: plane detections (fast); depth: 640x480 depth images."),
     keyframes: int = typer.Option(600, "--keyframes", "-n", help="Number of keyframes."),
     seed: int = typer.Option(0, "--seed", help="Random seed; the same seed gives the same files."),
@@ -212,11 +213,15 @@ def simulate(
     """Simulate a walk through a building with a drifting front-end, and its ground truth.
 
     Example: bimgraph simulate -o seq --scenario site --keyframes 800 --seed 3
+
+    Example: bimgraph simulate -o seq --ifc model.ifc --storey "Level 2"
     """
     from bimgraph.config import load_config
     from bimgraph.sim.simulate import SimOptions, simulate as run_simulation
 
     cfg = load_config(config_file)
+    if storey is not None:
+        cfg = cfg.model_copy(update={"sim": cfg.sim.model_copy(update={"storey": storey})})
     opts = SimOptions(output=output, scenario=scenario, ifc=ifc, sensor=sensor, keyframes=keyframes, seed=seed)
     opts.check()
     out = console()

@@ -385,3 +385,20 @@ def test_a_failed_simulation_leaves_no_folder_it_made(tmp_path, monkeypatch):
     monkeypatch.setattr(observe, "detect", stop)
     result = CliRunner().invoke(app, ["simulate", "-o", str(tmp_path / "stopped"), "-n", "5"])
     assert result.exit_code == 130 and not (tmp_path / "stopped").exists()
+
+
+def test_the_storey_to_walk_is_chosen_on_the_command_line(tmp_path, ifc_samples):
+    """`--storey` (`sim.storey`): the named storey is walked; a storey with no walls is one
+    line naming those that have some, and writes nothing."""
+    from typer.testing import CliRunner
+
+    from bimgraph.cli import app
+
+    model = str(ifc_samples / "AC20-FZK-Haus.ifc")
+    result = CliRunner().invoke(app, ["simulate", "-o", str(tmp_path / "attic"), "--ifc", model, "--storey", "Dachgeschoss", "-n", "5"])
+    assert result.exit_code == 0, result.output
+    assert load_groundtruth(tmp_path / "attic").as_built["storey"]["name"] == "Dachgeschoss"
+    result = CliRunner().invoke(app, ["simulate", "-o", str(tmp_path / "none"), "--scenario", "office", "--storey", "Roof", "-n", "5"])
+    assert result.exit_code == 2
+    assert result.stderr.strip().splitlines() == ["error: no walls on storey 'Roof'; storeys with walls: Level 0"]
+    assert not (tmp_path / "none").exists()

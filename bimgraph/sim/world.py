@@ -108,18 +108,23 @@ def pick_storey(plane_map: PlaneMap, name: str = "") -> Storey:
     ceiling_z = float(np.median([np.asarray(f.polygon)[:, 2].max() for f in own]))
     if ceiling_z - floor_z < MIN_HEADROOM_M:
         raise InputError(f"storey {name!r}: walls only {ceiling_z - floor_z:.2f} m high, too low to walk")
-    # the largest such slab, not a landing's or a canopy's
-    undersides = [(f.area, float(np.mean(np.asarray(f.polygon)[:, 2]))) for f in plane_map.faces if f.kind == "slab_bottom"]
-    ceiling_z = max([(area, z) for area, z in undersides if floor_z + MIN_HEADROOM_M <= z < ceiling_z],
-                    default=(0.0, ceiling_z))[1]
+    undersides = [f for f in plane_map.faces
+                  if f.kind == "slab_bottom" and floor_z + MIN_HEADROOM_M <= _height(f) < ceiling_z]
+    if undersides:  # the largest such slab, not a landing's or a canopy's
+        ceiling_z = _height(max(undersides, key=lambda f: f.area))
     faces = []
     for f in plane_map.faces:
         z = np.asarray(f.polygon)[:, 2]
         if f.kind == "wall" and z.max() > floor_z + 0.1 and z.min() < ceiling_z - 0.1:
             faces.append(f)
     floors = [f for f in plane_map.faces
-              if f.kind == "slab_top" and abs(float(np.mean(np.asarray(f.polygon)[:, 2])) - floor_z) < FLOOR_TOL_M]
+              if f.kind == "slab_top" and abs(_height(f) - floor_z) < FLOOR_TOL_M]
     return Storey(name=name, floor_z=floor_z, ceiling_z=ceiling_z, faces=faces, floors=floors)
+
+
+def _height(slab_face: BimFace) -> float:
+    """The mean height of a horizontal face's corners."""
+    return float(np.mean(np.asarray(slab_face.polygon)[:, 2]))
 
 
 def planned_elements(storey: Storey) -> list[Element]:

@@ -9,6 +9,7 @@ from bimgraph.evaluation.metrics import (
     association_scores,
     ate,
     extrinsic_error,
+    extrinsic_nees,
     mean_wall_errors,
     rpe,
     wall_errors,
@@ -45,6 +46,33 @@ def test_extrinsic_error():
     deg, cm = extrinsic_error(est, gt)
     assert deg == pytest.approx(2.0)
     assert cm == pytest.approx(5.0)
+
+
+def test_extrinsic_nees_of_a_known_error():
+    """An estimate yawed 40 deg and tilted a few, the covariance isotropic: an error of 2 sigma
+    along B's x gives 4, one in height is not counted, one in heading is."""
+    est = make_pose(Rotation.from_euler("zyx", [40, 3, -2], degrees=True).as_matrix(), [3.0, -2.0, 1.5])
+    cov = np.diag([0.002, 0.002, 0.002, 0.01, 0.01, 0.01]) ** 2
+    assert extrinsic_nees(est, cov, make_pose(est[:3, :3], est[:3, 3] + [0.02, 0.0, 0.0])) == pytest.approx(4.0, rel=1e-9)
+    assert extrinsic_nees(est, cov, make_pose(est[:3, :3], est[:3, 3] + [0.0, 0.0, 0.05])) == pytest.approx(0.0, abs=1e-12)
+    yawed = make_pose(Rotation.from_euler("z", 0.1, degrees=True).as_matrix() @ est[:3, :3], est[:3, 3])
+    assert extrinsic_nees(est, cov, yawed) == pytest.approx((np.radians(0.1) / 0.002) ** 2, rel=1e-6)
+
+
+def test_extrinsic_nees_is_chi_square_with_three_dof_for_errors_drawn_from_the_covariance():
+    """Errors drawn in gtsam's tangent (T_gt = T_est Exp(xi)) from a correlated covariance,
+    mapped by gtsam's exact exponential: the mean NEES is 3 and the tail chi-square's."""
+    import gtsam
+    from scipy.stats import chi2
+
+    rng = np.random.default_rng(1)
+    A = rng.normal(size=(6, 6)) * np.array([0.002] * 3 + [0.01] * 3)
+    cov = A @ A.T
+    est = make_pose(Rotation.from_euler("zyx", [115, 0.5, -0.3], degrees=True).as_matrix(), [10.0, 4.0, 1.2])
+    draws = rng.multivariate_normal(np.zeros(6), cov, size=4000)
+    nees = np.array([extrinsic_nees(est, cov, est @ gtsam.Pose3.Expmap(xi).matrix()) for xi in draws])
+    assert nees.mean() == pytest.approx(3.0, abs=0.2)  # (the mean of 4000 has a sigma of 0.04)
+    assert np.mean(nees > chi2.ppf(0.95, 3)) == pytest.approx(0.05, abs=0.015)
 
 
 def test_rotated_plane_gives_that_angular_deviation():

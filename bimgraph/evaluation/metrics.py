@@ -10,6 +10,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from bimgraph.geometry import inverse, normal_angle_deg, plane_from_frame, point_plane_distance, rotation_angle_deg
 
@@ -59,6 +60,24 @@ def extrinsic_error(T_B_S_est: np.ndarray, T_B_S_gt: np.ndarray) -> tuple[float,
     The translation part is measured where it matters, at the origin of S (the first camera)."""
     E = inverse(T_B_S_gt) @ T_B_S_est
     return rotation_angle_deg(E[:3, :3]), float(np.linalg.norm(T_B_S_est[:3, 3] - T_B_S_gt[:3, 3]) * 100.0)
+
+
+def extrinsic_nees(T_B_S_est: np.ndarray, cov_T_B_S: np.ndarray, T_B_S_gt: np.ndarray) -> float:
+    """Normalised estimation error squared of the extrinsic's heading and horizontal position
+    in B (3 dof: chi-square with 3 degrees of freedom, mean 3, where the covariance is
+    honest). Those are what the walls observe and a site team reads; the height and, for a
+    gravity-aligned front-end, the tilt are held by priors. `cov_T_B_S` is the estimate's
+    6x6 covariance in gtsam's Pose3 tangent (rotation, translation; `T_B_S_gt = T_B_S_est
+    Exp(xi)`); the error is taken to first order, which at centimetres and tenths of a degree
+    is the log map."""
+    delta = inverse(T_B_S_est) @ T_B_S_gt
+    xi = np.concatenate([Rotation.from_matrix(delta[:3, :3]).as_rotvec(), delta[:3, 3]])
+    R = T_B_S_est[:3, :3]
+    J = np.zeros((3, 6))  # tangent -> (yaw, x, y) in B
+    J[0, :3] = R[2]
+    J[1:, 3:] = R[:2]
+    e, P = J @ xi, J @ cov_T_B_S @ J.T
+    return float(e @ np.linalg.solve(P, e))
 
 
 @dataclass(frozen=True)

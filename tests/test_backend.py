@@ -82,6 +82,20 @@ def test_online_freezes_the_floor_and_keeps_its_estimates():
     assert ate(runs[5].T_B_C, scene.T_B_C) < 1.2 * ate(runs[10_000].T_B_C, scene.T_B_C)
 
 
+def test_online_freezes_only_level_planes():
+    """An upright plane that no face matches (here the walls across x, left out of the map) is
+    never frozen: a copy would hold the heading its anchor had before the drift fits that come
+    later. The floor still is."""
+    scene = make_scene(160, rooms=(2, 1), seed=0)
+    plane_map = PlaneMap(faces=[f for f in scene.plane_map.faces if abs(f.normal[0]) < 0.5])
+    cfg = BackendConfig()
+    cfg.isam2.freeze_after = 5
+    results = run_online(scene.keyframes, plane_map, cfg, scene.initial)
+    upright = [lm for lm in results.landmarks if lm.face is None and abs(lm.plane_S[2]) < 0.1 and len(lm.observations) >= 5]
+    assert upright and all(lm.frozen is None for lm in upright)
+    assert any(lm.frozen is not None and abs(lm.plane_S[2]) > 0.99 for lm in results.landmarks)
+
+
 def test_offline_close_to_oracle(scene, cfg):
     ours = run_offline(scene.keyframes, scene.plane_map, cfg, scene.initial)
     oracle = run_offline(scene.keyframes, scene.plane_map, cfg, scene.initial, oracle=scene.truth)

@@ -272,15 +272,19 @@ class Backend:
         lm.add_observation(k, obs.index, transform_points(self.landmarks.T_A_S[j] @ T_S_C, obs.points_C), obs.area,
                            self.cfg.slam_association.extent_max_points)
         # (its bounding sphere is recomputed by `_refresh`, which sets every observed landmark's estimate)
-        if lm.frozen is None and len(lm.observations) >= self.cfg.isam2.freeze_after and not self._matchable(lm):
+        if lm.frozen is None and len(lm.observations) >= self.cfg.isam2.freeze_after and self._freezable(lm):
             lm.frozen = FrozenPlane.of(lm.T_S_A, lm.plane_A, lm.cov_A)
         return j
 
-    def _matchable(self, lm: Landmark) -> bool:
-        """Whether some face of the map is within the association's normal angle of the
-        landmark (with the initial alignment's rotation, which is good to a few degrees)."""
+    def _freezable(self, lm: Landmark) -> bool:
+        """Whether the landmark is level (`isam2.freeze_max_tilt_deg`) and no face of the map is
+        within the association's normal angle of it (both with the initial alignment's
+        rotation, which is good to a few degrees). Its frozen copies keep the anchor's pose of
+        the moment of freezing, from before the drift fits that come later; of a level plane,
+        that pose fixes only height and tilt, which drift little."""
         n_B = self.prior.T_B_S[:3, :3] @ self.landmarks.planes_S[lm.id, :3]
-        return bool((self.faces.planes[:, :3] @ n_B >= np.cos(np.radians(self.cfg.bim_association.max_normal_angle_deg))).any())
+        level = abs(n_B[2]) >= np.cos(np.radians(self.cfg.isam2.freeze_max_tilt_deg))
+        return bool(level) and not (self.faces.planes[:, :3] @ n_B >= np.cos(np.radians(self.cfg.bim_association.max_normal_angle_deg))).any()
 
     def _keys_of(self, js) -> list[int]:
         return [L(j) for j in js] + [X(self.landmarks[j].anchor) for j in js]

@@ -29,6 +29,8 @@ def test_eval_writes_metrics_and_prints_every_method(tmp_path):
     assert len(metrics["per_keyframe"]["translation_error_m"]) == 80
     # (issue 5's goals on whole walks; 1.0 and 0.91 on this one)
     assert metrics["association_precision"] >= 0.99 and metrics["association_recall"] >= 0.85
+    assert 0.0 <= metrics["extrinsic_nees"] < 16.3  # (chi-square, 3 dof: 0.999 quantile)
+    assert "E NEES" in result.output
     # The run corrects the drifting front-end: its ATE is below the manual alignment's.
     manual_ate = float(next(line for line in result.output.splitlines() if "manual" in line).split("│")[2])
     assert metrics["ate_m"] < manual_ate

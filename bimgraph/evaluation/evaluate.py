@@ -14,6 +14,7 @@ from bimgraph.evaluation.metrics import (
     association_scores,
     ate,
     extrinsic_error,
+    extrinsic_nees,
     mean_wall_errors,
     rotation_errors_deg,
     rpe,
@@ -28,11 +29,13 @@ from bimgraph.sequence.groundtruth import GroundTruth
 @dataclass
 class Estimate:
     """What a method says about a sequence: `T_B_C` per keyframe (in keyframe order), the
-    final `T_B_S`, and its observation -> face associations (None when it has none)."""
+    final `T_B_S`, its observation -> face associations and the 6x6 covariance of `T_B_S`
+    (gtsam's Pose3 tangent; each None when the method has none)."""
 
     T_B_C: Sequence[np.ndarray]
     T_B_S: np.ndarray
     associations: Mapping[tuple[int, int], str] | None = None
+    cov_T_B_S: np.ndarray | None = None
 
 
 def true_associations(keyframes: Sequence[Keyframe], gt: GroundTruth) -> dict[tuple[int, int], str | None]:
@@ -73,6 +76,8 @@ def evaluate(estimate: Estimate, keyframes: Sequence[Keyframe], gt: GroundTruth,
         "wall_angle_deg": wall_angle,
         "wall_distance_m": wall_dist,
     }
+    if estimate.cov_T_B_S is not None:
+        out["extrinsic_nees"] = extrinsic_nees(estimate.T_B_S, estimate.cov_T_B_S, gt.T_B_S)
     if estimate.associations is not None:
         precision, recall = association_scores(estimate.associations, true_associations(keyframes, gt))
         out.update(association_precision=precision, association_recall=recall)

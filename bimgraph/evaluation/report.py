@@ -9,6 +9,7 @@ COLUMNS = [
     ("ate_m", "ATE m", "{:.3f}"),
     ("extrinsic_rot_deg", "E deg", "{:.2f}"),
     ("extrinsic_trans_cm", "E cm", "{:.1f}"),
+    ("extrinsic_nees", "E NEES", "{:.1f}"),
     ("wall_angle_deg", "wall deg", "{:.2f}"),
     ("wall_distance_m", "wall m", "{:.3f}"),
     ("wall_angle_reduction_pct", "deg -%", "{:.1f}"),
@@ -30,7 +31,8 @@ def metrics_table(rows: list[dict]):
     from rich.table import Table
 
     present = [c for c in COLUMNS if any(c[0] in r for r in rows)]
-    table = Table(title="bimgraph evaluation", caption="E: extrinsic T_B_S error; wall: the paper's wall errors; "
+    table = Table(title="bimgraph evaluation", caption="E: extrinsic T_B_S error (NEES: of its heading and "
+                  "horizontal position against its covariance, 3 on average where that is honest); wall: the paper's wall errors; "
                   "-%: reduction against manual; prec./recall: association against ground truth; "
                   "ms/kf: median online latency per keyframe; truth: the ground truth measured alike")
     for _, title, _ in present:

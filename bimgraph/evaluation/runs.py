@@ -30,9 +30,9 @@ def load_estimate(out_dir: Path) -> Estimate:
     if not out_dir.is_dir():
         raise InputError(f"{out_dir}: no such output folder")
     _, T_B_C = read_tum(out_dir / TRAJECTORY_BIM)
-    T_B_S = pose_from_tum(load_extrinsic(out_dir / EXTRINSIC).T_B_S)
+    extrinsic = load_extrinsic(out_dir / EXTRINSIC)
     associations = load_associations(out_dir / ASSOCIATIONS).face_of_observation()
-    return Estimate(list(T_B_C), T_B_S, associations)
+    return Estimate(list(T_B_C), pose_from_tum(extrinsic.T_B_S), associations, np.asarray(extrinsic.covariance))
 
 
 class Evaluation:

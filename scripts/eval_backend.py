@@ -52,8 +52,9 @@ def evaluate(root: Path, cfg, modes=MODES) -> list[dict]:
         seconds = time.perf_counter() - start
         precision, recall = association_scores(results.associations(), truth)
         rot_deg, trans_cm = extrinsic_error(results.T_B_S, gt.T_B_S)
+        nees = extrinsic_nees(results.T_B_S, results.cov_T_B_S, gt.T_B_S)
         rows.append({"sequence": root.name, "mode": mode, "precision": precision, "recall": recall, "rot_deg": rot_deg,
-                     "trans_cm": trans_cm, "nees": extrinsic_nees(results.T_B_S, results.cov_T_B_S, gt.T_B_S), "ate_cm": 100 * ate(results.T_B_C, gt.T_B_C), "frontend_ate_cm": 100 * frontend,
+                     "trans_cm": trans_cm, "nees": nees, "ate_cm": 100 * ate(results.T_B_C, gt.T_B_C), "frontend_ate_cm": 100 * frontend,
                      "seconds": seconds, "tolerance": results.bim_tolerance, "unobservable": [u["kind"][0] + str([round(a, 2) for a in u["axis_B"]]) for u in results.unobservable]})
     return rows
 

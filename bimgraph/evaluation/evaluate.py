@@ -76,7 +76,7 @@ def evaluate(estimate: Estimate, keyframes: Sequence[Keyframe], gt: GroundTruth,
         "wall_angle_deg": wall_angle,
         "wall_distance_m": wall_dist,
     }
-    if estimate.cov_T_B_S is not None:
+    if estimate.cov_T_B_S is not None and np.isfinite(estimate.cov_T_B_S).all():
         out["extrinsic_nees"] = extrinsic_nees(estimate.T_B_S, estimate.cov_T_B_S, gt.T_B_S)
     if estimate.associations is not None:
         precision, recall = association_scores(estimate.associations, true_associations(keyframes, gt))

@@ -8,7 +8,6 @@ import pytest
 from bimgraph.backend import (Alignment, Backend, BimAssociator, FaceIndex, Listener, planes_in_B_independent,
                               run_offline, run_online)
 from bimgraph.backend.landmarks import Landmark
-from bimgraph.backend.online import covariance_due
 from bimgraph.backend.synthetic import make_scene
 from bimgraph.bim.planemap import BimFace, PlaneMap
 from bimgraph.config import BackendConfig
@@ -61,39 +60,6 @@ def test_online(scene, cfg):
     assert rot_deg < 4 * sigma_rot_deg
     # walls only: height can never be observed, and is reported
     assert results.unobservable == [{"kind": "translation", "axis_B": [0.0, 0.0, 1.0]}]
-
-
-def test_online_freezes_the_floor_and_keeps_its_estimates():
-    """The floor, which no wall face can match, is frozen after `isam2.freeze_after`
-    observations (its later observations tie each keyframe to a copy of it); the walls are not.
-    The causal trajectory stays where the unfrozen graph puts it."""
-    scene = make_scene(160, rooms=(2, 1), seed=0)
-    runs = {}
-    for freeze_after in (5, 10_000):
-        cfg = BackendConfig()
-        cfg.isam2.freeze_after = freeze_after
-        runs[freeze_after] = run_online(scene.keyframes, scene.plane_map, cfg, scene.initial)
-    frozen = [lm for lm in runs[5].landmarks if lm.frozen is not None]
-    assert frozen and all(lm.face is None and abs(lm.plane_S[2]) > 0.9 for lm in frozen)  # the floor
-    assert all(lm.frozen is None for lm in runs[5].landmarks if lm.face is not None)
-    assert not any(lm.frozen is not None for lm in runs[10_000].landmarks)
-    steps = [np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in zip(runs[5].T_B_C, runs[10_000].T_B_C)]
-    assert max(steps) < 0.01
-    assert ate(runs[5].T_B_C, scene.T_B_C) < 1.2 * ate(runs[10_000].T_B_C, scene.T_B_C)
-
-
-def test_online_freezes_only_level_planes():
-    """An upright plane that no face matches (here the walls across x, left out of the map) is
-    never frozen: a copy would hold the heading its anchor had before the drift fits that come
-    later. The floor still is."""
-    scene = make_scene(160, rooms=(2, 1), seed=0)
-    plane_map = PlaneMap(faces=[f for f in scene.plane_map.faces if abs(f.normal[0]) < 0.5])
-    cfg = BackendConfig()
-    cfg.isam2.freeze_after = 5
-    results = run_online(scene.keyframes, plane_map, cfg, scene.initial)
-    upright = [lm for lm in results.landmarks if lm.face is None and abs(lm.plane_S[2]) < 0.1 and len(lm.observations) >= 5]
-    assert upright and all(lm.frozen is None for lm in upright)
-    assert any(lm.frozen is not None and abs(lm.plane_S[2]) > 0.99 for lm in results.landmarks)
 
 
 def test_offline_close_to_oracle(scene, cfg):
@@ -427,12 +393,3 @@ def test_online_revises_a_match_no_longer_observed():
             matched_at = kf.index
     assert matched_at + cfg.isam2.refresh_every < scene.keyframes[-1].index
     assert backend.landmarks[j].face is None and wrong in backend.landmarks[j].rejected
-
-
-def test_long_seen_landmarks_have_their_marginals_read_ever_more_rarely():
-    cfg = BackendConfig().isam2
-    due = [n for n in range(1, 1025) if covariance_due(n, cfg)]
-    assert due[:6] == [1, 2, 3, 4, 8, 16]  # early, then every covariance_every
-    assert [n for n in due if 512 <= n <= 1024] == [512, 640, 768, 896, 1024]  # every n / 4
-    legacy = cfg.model_copy(update={"covariance_growth": 0.0})
-    assert [n for n in range(1, 1025) if covariance_due(n, legacy)] == [1, 2, 3, 4] + list(range(8, 1025, 8))

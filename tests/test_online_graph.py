@@ -2,6 +2,7 @@
 floor, and marginals of long-seen landmarks read ever more rarely."""
 
 import numpy as np
+import pytest
 
 from bimgraph.backend import run_online
 from bimgraph.backend.online import covariance_due
@@ -51,3 +52,21 @@ def test_long_seen_landmarks_have_their_marginals_read_ever_more_rarely():
     assert [n for n in due if 512 <= n <= 1024] == [512, 640, 768, 896, 1024]  # every n / 4
     legacy = cfg.model_copy(update={"covariance_growth": 0.0})
     assert [n for n in range(1, 1025) if covariance_due(n, legacy)] == [1, 2, 3, 4] + list(range(8, 1025, 8))
+
+
+@pytest.mark.parametrize("tilt_deg, freezable", [(0.0, True), (4.0, True), (10.0, False), (90.0, False)])
+def test_only_planes_within_the_tilt_of_level_are_frozen(tilt_deg, freezable):
+    """`isam2.freeze_max_tilt_deg` (5 deg) from the vertical, by the initial alignment; the
+    planes' azimuth is 45 deg off every wall, so that no face matches any of them."""
+    from bimgraph.backend import Backend
+    from bimgraph.backend.landmarks import Landmark
+
+    scene = make_scene(20, rooms=(1, 1), seed=0)
+    backend = Backend(scene.plane_map, BackendConfig(), scene.initial)
+    tilt, azimuth = np.radians(tilt_deg), np.radians(45.0) + np.arctan2(*scene.plane_map.faces[0].normal[1::-1])
+    n_B = np.array([np.sin(tilt) * np.cos(azimuth), np.sin(tilt) * np.sin(azimuth), np.cos(tilt)])
+    n_S = backend.prior.T_B_S[:3, :3].T @ n_B
+    landmark = Landmark(0, 0, np.append(n_S, -1.0), np.eye(3), np.eye(4))
+    backend.landmarks.add(landmark)
+    backend.landmarks.planes_S[0] = np.append(n_S, -1.0)
+    assert backend._freezable(landmark) == freezable

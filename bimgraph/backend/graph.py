@@ -314,9 +314,11 @@ class IncrementalGraph:
         """Every factor in iSAM2 as a batch graph (after `update`)."""
         return self._batch(skip=set())
 
-    def without_bim(self) -> gtsam.NonlinearFactorGraph:
-        """Every factor in iSAM2 but the plane-to-BIM ones, as a batch graph (after `update`)."""
-        return self._batch(skip=set(self.bim_index.values()))
+    def without_bim(self, odometry: bool = True) -> gtsam.NonlinearFactorGraph:
+        """Every factor in iSAM2 but the plane-to-BIM ones (and the odometry, if not
+        `odometry`), as a batch graph (after `update`)."""
+        skip = set(self.bim_index.values())
+        return self._batch(skip if odometry else skip | set(self.odometry_index.values()))
 
     def _batch(self, skip: set[int]) -> gtsam.NonlinearFactorGraph:
         factors = self.isam.getFactorsUnsafe()

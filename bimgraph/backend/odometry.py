@@ -5,6 +5,8 @@ offline only). No I/O."""
 
 from __future__ import annotations
 
+import copy
+
 import gtsam
 import numpy as np
 
@@ -50,6 +52,12 @@ class OdometryModel:
         self._variance, self._factors = np.asarray(factors, dtype=float), {}
         scale = np.sqrt(np.repeat(self._variance, 3))
         self._scale = np.outer(scale, scale)
+
+    def scaled(self, sigma_scale: float) -> "OdometryModel":
+        """This model with its noise's sigmas scaled (the same poses and drift)."""
+        model = copy.copy(self)
+        model.variance = self.variance * sigma_scale**2
+        return model
 
     def pose(self, kf: Keyframe) -> np.ndarray:
         """The front-end's `T_S_C` of keyframe `kf` (one keyframe per index)."""

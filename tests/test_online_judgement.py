@@ -59,3 +59,36 @@ def test_the_judgement_sees_the_walk_stiffer_than_the_noise_given(scale):
         assert verdicts == {"r00E": "kept"} and error_cm > 4.0
     else:
         assert verdicts == {"r00E": "out"} and error_cm < 1.0
+        # judged as offline, the tolerance tightened to what the kept walls show (0.05 deg, 5 mm)
+        normal_rad, offset_m = backend.judge.tolerance
+        assert np.degrees(normal_rad) < 0.5 * cfg.noise.bim_normal_deg and offset_m < cfg.noise.bim_offset_m
+
+
+def test_the_stiff_graph_replaces_each_odometry_factor_and_leaves_the_graph_as_given():
+    """The judgement's graph holds the same factors as the online graph without its
+    plane-to-BIM ones, each odometry factor with its sigmas scaled by
+    `judge_odometry_scale`; the online graph's own odometry keeps the noise as given."""
+    scene = make_scene(60, rooms=(1, 1), seed=2)
+    cfg = BackendConfig()
+    cfg.isam2.judge_odometry_scale = 0.2
+    backend = Backend(scene.plane_map, cfg, scene.initial)
+    for kf in scene.keyframes:
+        backend.process(kf)
+    graph = backend.graph
+    n_odometry = len(graph.odometry_index)
+    assert n_odometry == len(scene.keyframes) - 1
+    assert graph.without_bim(odometry=False).size() == graph.without_bim().size() - n_odometry
+    stiff = backend._stiff_rest()
+    assert stiff.size() == graph.without_bim().size()
+
+    def sigmas(factor):
+        return np.sqrt(np.diag(np.linalg.inv(factor.noiseModel().information())))
+
+    previous, kf = scene.keyframes[10], scene.keyframes[11]
+    given = backend.odometry.factor(previous, kf)
+    scaled = backend.odometry.scaled(0.2)
+    np.testing.assert_allclose(sigmas(scaled.factor(previous, kf)), 0.2 * sigmas(given), rtol=1e-9)
+    np.testing.assert_allclose(backend.odometry.variance, [1.0, 1.0])
+    assert backend.odometry.factor(previous, kf) is given
+    in_isam2 = graph.isam.getFactorsUnsafe().at(graph.odometry_index[kf.index])
+    np.testing.assert_allclose(sigmas(in_isam2), sigmas(given), rtol=1e-9)

@@ -86,6 +86,7 @@ class Backend:
         self._landmark_of_face: dict[str, int] = {}
         self._previous: tuple[Keyframe, np.ndarray] | None = None  # the keyframe before and its estimate
         self.odometry = OdometryModel(self.build)  # the front-end's drift, taken out as found
+        self._stiff: OdometryModel | None = None  # the judgement's (`_stiff_rest`), while the drift stands
         self._keyframes: list[Keyframe] = []  # so far, for the drift's fit
         self._observations: dict[tuple[int, int], Observation] = {}  # (keyframe, index) -> as seen, for merges
         self._merged: list[int] = []  # landmarks that took another's observations in this keyframe
@@ -245,10 +246,11 @@ class Backend:
         given (a front-end's conservative default) the walk bends around a wall built off plan
         that the first room shows, until its misfit looks like noise (office 1: walls built 4.0-6.6 cm
         off ended at 1.7 sigma, kept)."""
+        if self._stiff is None or self._stiff.drift is not self.odometry.drift:
+            self._stiff = self.odometry.scaled(self.cfg.isam2.judge_odometry_scale)
         rest = self.graph.without_bim(odometry=False)
-        stiff = self.odometry.scaled(self.cfg.isam2.judge_odometry_scale)
         for previous, kf in zip(self._keyframes, self._keyframes[1:]):
-            rest.add(stiff.factor(previous, kf))
+            rest.add(self._stiff.factor(previous, kf))
         return rest
 
     def _match_observations(self, k: int, observations: list[Observation], T_S_C: np.ndarray) -> list[int | None]:

@@ -77,6 +77,8 @@ def test_run_writes_every_output(world, tmp_path, mode):
     # this world's front-end drifts as a random walk: no rate stands out
     assert summary["frontend_drift"]["rotation_deg_per_m"] == [0.0, 0.0, 0.0]
     assert summary["frontend_drift"]["translation_percent"] == [0.0, 0.0, 0.0]
+    # the plane-to-BIM tolerance as the robust alignment left it (online: its online judgement)
+    assert 0 < summary["bim_tolerance"]["normal_deg"] <= 1.0 and 0 < summary["bim_tolerance"]["offset_m"] <= 0.01
     # the terminal gets the run in a few lines, from those files
     printed = " ".join(result.output.split())
     for line in ("T_B_S sigma", "translation along [0.0, 0.0, 1.0]", f"keyframes │ {N}",

@@ -421,4 +421,4 @@ def run_online(keyframes, plane_map: PlaneMap, cfg: BackendConfig, initial: Alig
     return Results(mode="online", indices=[r.index for r in emitted], stamps=[r.stamp for r in emitted],
                    T_S_C=[r.T_S_C for r in emitted], T_B_C=[r.T_B_C for r in emitted], T_B_S=last.T_B_S,
                    cov_T_B_S=last.cov_T_B_S, unobservable=backend.unobservable(), landmarks=backend.landmarks.current(),
-                   timings=timings)
+                   timings=timings, bim_tolerance=backend.judge.tolerance if backend.judge_every else None)

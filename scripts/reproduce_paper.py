@@ -67,8 +67,12 @@ def one_run(job: dict) -> dict:
     return {**job, "metrics": metrics, "timings": timings}
 
 
-def aggregate(runs: list[dict], key: str, method: str) -> tuple[float, float]:
-    values = [r["metrics"][method][key] for r in runs]
+def aggregate(runs: list[dict], key: str, method: str) -> tuple[float, float] | None:
+    """Mean and spread of a metric over the runs; None where a method lacks it (the baselines
+    have no covariance, so no NEES)."""
+    values = [r["metrics"][method].get(key) for r in runs]
+    if any(v is None for v in values):
+        return None
     return float(np.mean(values)), float(np.std(values))
 
 
@@ -84,8 +88,9 @@ def markdown(runs: list[dict]) -> str:
         for method in METHODS:
             cells = []
             for key, _, fmt in METRICS:
-                mean, std = aggregate(group, key, method)
-                cells.append("-" if method == "manual" and "reduction" in key else f"{fmt.format(mean)} ± {fmt.format(std)}")
+                stats = aggregate(group, key, method)
+                cells.append("-" if stats is None or method == "manual" and "reduction" in key
+                             else f"{fmt.format(stats[0])} ± {fmt.format(stats[1])}")
             lines.append(f"| {method} | " + " | ".join(cells) + " |")
         precision = aggregate(group, "association_precision", "bimgraph offline")[0]
         recall = aggregate(group, "association_recall", "bimgraph offline")[0]
@@ -145,12 +150,13 @@ def main() -> int:
             print(f"done {result['scenario']} {result['sensor']} seed {result['seed']} "
                   f"({', '.join(f'{k} {v:.0f}' for k, v in result['timings'].items())})", file=sys.stderr)
     elapsed = time.perf_counter() - start
+    # (the runs first: their minutes of simulation are not lost to a failure in the summary)
+    (args.output / "results.json").write_text(json.dumps(runs, indent=1))
     table = markdown(runs)
     plots = plot(runs, args.output)
     (args.output / "results.md").write_text(
         f"# Reproduction of the seed paper's comparison\n\n{table}\n"
         f"Total wall time {elapsed / 60:.1f} min on this machine ({args.workers} worker processes).\n")
-    (args.output / "results.json").write_text(json.dumps(runs, indent=1))
     print(table)
     print(f"\nwrote {args.output / 'results.md'}, results.json and {len(plots)} plots in {elapsed / 60:.1f} min")
     return 0

@@ -143,6 +143,12 @@ class Backend:
         self._previous = (kf, values.atPose3(X(k)).matrix())
         return observations, observed, values
 
+    @property
+    def bim_tolerance(self) -> tuple[float, float] | None:
+        """The plane-to-BIM tolerance (normal rad, offset m) as the online judgement left it;
+        None where it never judges (`isam2.judge_every` 0)."""
+        return self.judge.tolerance if self.judge_every else None
+
     def extrinsic_covariance(self, T_S_B: gtsam.Pose3 | None = None) -> np.ndarray:
         """The covariance of `T_B_S` as the graph stands (6x6, gtsam's Pose3 tangent); `T_S_B`
         is the extrinsic's estimate, if the caller has it."""
@@ -422,4 +428,4 @@ def run_online(keyframes, plane_map: PlaneMap, cfg: BackendConfig, initial: Alig
     return Results(mode="online", indices=[r.index for r in emitted], stamps=[r.stamp for r in emitted],
                    T_S_C=[r.T_S_C for r in emitted], T_B_C=[r.T_B_C for r in emitted], T_B_S=last.T_B_S,
                    cov_T_B_S=last.cov_T_B_S, unobservable=backend.unobservable(), landmarks=backend.landmarks.current(),
-                   timings=timings, bim_tolerance=backend.judge.tolerance if backend.judge_every else None)
+                   timings=timings, bim_tolerance=backend.bim_tolerance)

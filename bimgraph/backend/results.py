@@ -268,7 +268,7 @@ class OnlineWriter:
         write_json(self.out / ASSOCIATIONS, associations_record(landmarks))
         write_json(self.out / LANDMARKS, landmarks_record(landmarks, self.last.T_B_S))
         self._summary = summary_record("online", timings or {}, self.latencies, len(self.latencies), landmarks, finished,
-                                       inputs=self.inputs, bim_tolerance=backend.judge.tolerance if backend.judge_every else None,
+                                       inputs=self.inputs, bim_tolerance=backend.bim_tolerance,
                                        frontend_drift=backend.odometry.summary() if backend.drift_every else None)
         write_json(self.out / SUMMARY, self._summary)
 

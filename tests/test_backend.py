@@ -129,9 +129,9 @@ def test_offline_judges_each_face_once_even_when_the_rounds_run_out(scene, monke
         values.insert(L(twin.id), gtsam.OrientedPlane3(twin.plane_A))
         return True
 
-    def decide(self, matches, graph_with, values):
+    def decide(self, matches, reduced):
         judged.append([face for _, face in matches])
-        return real_decide(self, matches, graph_with, values)
+        return real_decide(self, matches, reduced)
 
     monkeypatch.setattr(OfflineEstimator, "_split", split)
     monkeypatch.setattr(RobustAlignment, "decide", decide)

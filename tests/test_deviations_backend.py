@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bimgraph.backend.graph import E, L, X, BatchSolver, bim_keys, joint_covariance
+from bimgraph.backend.graph import PLANE_S, E, L, X, BatchSolver, bim_keys, joint_covariance
 from bimgraph.backend.marginals import JointMarginals
 from bimgraph.backend.offline import OfflineEstimator
 from bimgraph.backend.online import Backend, observations_of
 from bimgraph.backend.pipeline import run as run_pipeline
-from bimgraph.backend.robust_alignment import reduced
+from bimgraph.backend.reduced import reduced
 from bimgraph.backend.synthetic import make_scene
 from bimgraph.bim.planemap import PlaneMap, save_plane_map
 from bimgraph.config import BackendConfig, Config, DeviationConfig
@@ -137,22 +137,46 @@ def test_offline_gnc_keeps_the_moved_wall_out_of_the_alignment(offline_runs):
 
 
 def test_the_judgement_sees_the_whole_graph_through_its_marginal(offline_runs):
-    """The robust alignment judges on the rest of the graph's Gaussian marginal on the judged
-    variables (`robust_alignment.reduced`): at the point it was taken, the reduced graph with
-    the plane-to-BIM factors has the whole graph's joint marginals of those variables, so the
-    tolerance estimate and the studentized tests see the same."""
+    """The robust alignment judges on the rest of the graph's Gaussian marginal on the
+    extrinsic and the judged landmarks held in S (`bimgraph.backend.reduced`): at the point it
+    was taken, the reduced graph with the plane-to-BIM factors has the whole graph's joint
+    marginals of those, mapped to the planes in S by central differences, so the tolerance
+    estimate and the studentized tests see the same; and its point, mapped back, is the whole
+    graph's estimate."""
     scene, plan, runs = offline_runs
     est, _ = runs[True]
     observations = {kf.index: observations_of(kf, est.online.build) for kf in scene.keyframes}
     matched = [lm for lm in est.landmarks.current() if lm.face is not None]
     whole = est._graph(scene.keyframes, observations)
     values = BatchSolver(50, 1e-9)(whole, est.online.graph.estimate())
-    graph_with, point = reduced(est._graph(scene.keyframes, observations, lambda lm: None), values, matched)
-    small = graph_with(est.judge.judged_factor)
-    keys = bim_keys(matched)
+    judged = reduced(est._graph(scene.keyframes, observations, lambda lm: None), values, matched)
+    small = judged.graph(est.judge.judged_factor)
     assert small.size() < whole.size() / 10
-    np.testing.assert_allclose(JointMarginals(small, point, keys)(keys), JointMarginals(whole, values, keys)(keys),
-                               rtol=1e-6, atol=1e-12)
+
+    keys = bim_keys(matched)
+    rows = {key: 6 * (key in {E} | {X(lm.anchor) for lm in matched}) or 3 for key in keys}
+    starts = dict(zip(keys, np.cumsum([0] + [rows[key] for key in keys])))
+    keys_S = [E] + [PLANE_S(lm.id) for lm in matched]
+    T = np.zeros((6 + 3 * len(matched), sum(rows.values())))  # whole tangent -> (E, planes in S) tangent
+    T[:6, starts[E]:starts[E] + 6] = np.eye(6)
+    h = 1e-6
+    for i, lm in enumerate(matched):
+        plane_S = judged.point.atOrientedPlane3(PLANE_S(lm.id))
+        for key, dim in ((X(lm.anchor), 6), (L(lm.id), 3)):
+            for k in range(dim):
+                moved = [gtsam.Values(values), gtsam.Values(values)]
+                for sign, v in zip((1, -1), moved):
+                    v.update(key, (values.atPose3(key) if dim == 6 else values.atOrientedPlane3(key)).retract(sign * h * np.eye(dim)[k]))
+                ends = [v.atOrientedPlane3(L(lm.id)).transform(v.atPose3(X(lm.anchor)).inverse()) for v in moved]
+                T[6 + 3 * i:9 + 3 * i, starts[key] + k] += (plane_S.localCoordinates(ends[0]) - plane_S.localCoordinates(ends[1])) / (2 * h)
+    expected = T @ JointMarginals(whole, values, keys)(keys) @ T.T
+    np.testing.assert_allclose(JointMarginals(small, judged.point, keys_S)(keys_S), expected, rtol=1e-5, atol=1e-12)
+
+    back = judged.anchored(judged.point)
+    np.testing.assert_allclose(back.atPose3(E).matrix(), values.atPose3(E).matrix(), atol=1e-12)
+    for lm in matched:
+        np.testing.assert_allclose(back.atOrientedPlane3(L(lm.id)).planeCoefficients(),
+                                   values.atOrientedPlane3(L(lm.id)).planeCoefficients(), atol=1e-12)
 
 
 def test_offline_gnc_measures_the_moved_wall_against_the_others(offline_runs, tmp_path):
@@ -319,10 +343,10 @@ def test_offline_challenge_overturns_the_worse_consensus(monkeypatch):
     real_decide, real_challenge = RobustAlignment.decide, OfflineEstimator._challenge
     challenges = []
 
-    def decide(self, matches, graph_with, values):
-        real_decide(self, matches, graph_with, values)
+    def decide(self, matches, reduced):
+        real_decide(self, matches, reduced)
         self.verdicts = {m: DIRECTION if v == KEPT else KEPT for m, v in self.verdicts.items()}
-        return BatchSolver(20, 1e-6)(graph_with(self.factors(self.verdicts)), values)
+        return BatchSolver(20, 1e-6)(reduced.graph(self.factors(self.verdicts)), reduced.point)
 
     def challenge(self, *args):
         challenges.append(dict(self.judge.verdicts))
@@ -353,18 +377,23 @@ def test_likelihood_cost_is_the_tls_cost_at_the_configured_tolerance_and_rewards
     est = OfflineEstimator(scene.plane_map, BackendConfig(), scene.initial)
     est.run(scene.keyframes)
     judge, matches = est.judge, est._matches()
-    values = est.online.graph.estimate()
     obs = {kf.index: observations_of(kf, est.online.build) for kf in scene.keyframes}
-    graph_with = lambda factor: est._graph(scene.keyframes, obs, factor)  # noqa: E731
+    judged = reduced(est._graph(scene.keyframes, obs, lambda lm: None), est.online.graph.estimate(),
+                     [est.landmarks[j] for j, _ in matches])
+    values, rest = judged.point, judged.graph(lambda lm: None).error(judged.point)
     configured = est.online.build.bim_tolerance()
+    c2 = chi2.ppf(judge.cfg.gnc_probability, 3)
+
+    def r2():
+        return np.array([2.0 * judge.factor(judged.landmarks[j], 1.0).error(values) for j, _ in matches])
+
     log_det = 2 * np.log(configured[0]) + np.log(configured[1])
     judge.tolerance = configured
-    tls = judge.tls_cost(graph_with(lambda lm: None), matches, values)
-    assert judge._likelihood_cost(matches, graph_with, values) == pytest.approx(tls + len(matches) * log_det, rel=1e-9)
+    tls = rest + 0.5 * np.minimum(r2(), c2).sum()
+    assert judge._likelihood_cost(matches, judged, values) == pytest.approx(tls + len(matches) * log_det, rel=1e-9)
     judge.tolerance = (configured[0] / 4, configured[1] / 4)
-    r2 = np.array([2.0 * judge.factor(est.landmarks[j], 1.0).error(values) for j, _ in matches])
-    off_plan = 0.5 * chi2.ppf(judge.cfg.gnc_probability, 3) + log_det
+    off_plan = 0.5 * c2 + log_det
     tight = 2 * np.log(configured[0] / 4) + np.log(configured[1] / 4)
-    expected = graph_with(lambda lm: None).error(values) + np.minimum(0.5 * r2 + tight, off_plan).sum()
-    assert judge._likelihood_cost(matches, graph_with, values) == pytest.approx(expected, rel=1e-9)
-    assert (0.5 * r2 + tight < off_plan).any()
+    expected = rest + np.minimum(0.5 * r2() + tight, off_plan).sum()
+    assert judge._likelihood_cost(matches, judged, values) == pytest.approx(expected, rel=1e-9)
+    assert (0.5 * r2() + tight < off_plan).any()

@@ -78,7 +78,7 @@ def test_the_stiff_graph_replaces_each_odometry_factor_and_leaves_the_graph_as_g
     n_odometry = len(graph.odometry_index)
     assert n_odometry == len(scene.keyframes) - 1
     assert graph.without_bim(odometry=False).size() == graph.without_bim().size() - n_odometry
-    stiff = backend._stiff_rest()
+    stiff = backend.judge.stiff_rest(graph, backend.odometry, backend._keyframes)
     assert stiff.size() == graph.without_bim().size()
 
     def sigmas(factor):

@@ -61,7 +61,7 @@ KEPT, DIRECTION, OUT = "kept", "direction", "out"
 @dataclass
 class Landmark:
     id: int
-    anchor: int
+    anchor: int | None  # the keyframe it is held in; None: held in S (`graph.landmark_keys`)
     plane_A: np.ndarray
     cov_A: np.ndarray
     T_S_A: np.ndarray

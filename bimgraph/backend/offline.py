@@ -14,7 +14,7 @@ until a round changes nothing. Once the association settles, the robust alignmen
 which plane-to-BIM factors the alignment keeps (`bimgraph.backend.robust_alignment`): the
 walls consistent with each other decide the extrinsic and the poses, and a wall built off
 plan is measured against them, to the tolerance the kept walls show. It judges on the rest of
-the graph's Gaussian marginal on the judged variables (`robust_alignment.reduced`: its many
+the graph's Gaussian marginal on the judged variables (`bimgraph.backend.reduced`: its many
 solves are of a few dozen variables), and the next round solves the whole graph under its
 verdicts; the rounds go on until neither changes.
 """
@@ -38,7 +38,8 @@ from bimgraph.backend.matches import face_misfit, one_plane_d2, revision_reason,
 from bimgraph.backend.odometry import OdometryModel
 from bimgraph.backend.online import Backend, Oracle, observations_of
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
-from bimgraph.backend.robust_alignment import RobustAlignment, reduced
+from bimgraph.backend.reduced import reduced
+from bimgraph.backend.robust_alignment import RobustAlignment
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig
 from bimgraph.geometry import inverse, plane_from_frame
@@ -115,9 +116,9 @@ class OfflineEstimator:
             t_assoc += time.perf_counter() - t1
             if not changed and self.cfg.offline.gnc and set(self._matches()) != set(self.judge.verdicts):
                 t2 = time.perf_counter()
-                graph_with, point = reduced(self._graph(keyframes, observations, lambda lm: None), values,
-                                            [lm for lm in self.landmarks.current() if lm.face is not None])
-                values.update(self.judge.decide(self._matches(), graph_with, point))
+                judged = reduced(self._graph(keyframes, observations, lambda lm: None), values,
+                                 [lm for lm in self.landmarks.current() if lm.face is not None])
+                values.update(judged.anchored(self.judge.decide(self._matches(), judged)))
                 t_opt += time.perf_counter() - t2
                 changed = True
             elif not changed and self.cfg.offline.gnc and not challenged:
@@ -159,8 +160,8 @@ class OfflineEstimator:
                                                      if rival_verdicts[j, face] != self.judge.verdicts[j, face]})}
         if margin >= 0:
             return None
-        graph_with, point = reduced(without_bim, rival, [lm for lm in self.landmarks.current() if lm.face is not None])
-        rival.update(self.judge.adopt(matches, graph_with, point))
+        judged = reduced(without_bim, rival, [lm for lm in self.landmarks.current() if lm.face is not None])
+        rival.update(judged.anchored(self.judge.adopt(matches, judged)))
         return rival
 
     def _matches(self) -> list[tuple[int, str]]:

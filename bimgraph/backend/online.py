@@ -14,12 +14,12 @@ from bimgraph.backend.alignment import Alignment, levelled, lock_directions, unl
 from bimgraph.backend.associate_bim import BimAssociator, FaceIndex, FaceMatch, candidate
 from bimgraph.backend.associate_slam import Observation, SlamAssociator
 from bimgraph.backend import drift
-from bimgraph.backend.graph import E, L, X, FactorBuilder, FrozenPlane, IncrementalGraph, bim_keys, cov_T_B_S
+from bimgraph.backend.graph import E, L, X, FactorBuilder, FrozenPlane, IncrementalGraph, cov_T_B_S
 from bimgraph.backend.landmarks import KEPT, Landmark, LandmarkTable, observation_points, transform_points
 from bimgraph.backend.matches import face_misfit, offset_sigma, one_plane_d2, revision_reason, unmatch
 from bimgraph.backend.odometry import OdometryModel
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
-from bimgraph.backend.robust_alignment import RobustAlignment, reduced
+from bimgraph.backend.online_judgement import OnlineJudgement
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig, Isam2Config
 from bimgraph.geometry import plane_to_frame
@@ -86,15 +86,11 @@ class Backend:
         self._landmark_of_face: dict[str, int] = {}
         self._previous: tuple[Keyframe, np.ndarray] | None = None  # the keyframe before and its estimate
         self.odometry = OdometryModel(self.build)  # the front-end's drift, taken out as found
-        self._stiff: OdometryModel | None = None  # the judgement's (`_stiff_rest`), while the drift stands
         self._keyframes: list[Keyframe] = []  # so far, for the drift's fit
         self._observations: dict[tuple[int, int], Observation] = {}  # (keyframe, index) -> as seen, for merges
         self._merged: list[int] = []  # landmarks that took another's observations in this keyframe
         self._count = 0
-        # the robust alignment, online: without the studentized tests (each takes a marginal of
-        # the whole graph; the rest works on the graph reduced to the judged variables)
-        self.judge = RobustAlignment(self.faces, self.build, self.landmarks,
-                                     cfg.offline.model_copy(update={"studentized": False}))
+        self.judge = OnlineJudgement(self.faces, self.build, self.landmarks, cfg)
 
     # -- the step ---------------------------------------------------------------------------
     def process(self, kf: Keyframe) -> KeyframeResult:
@@ -138,7 +134,7 @@ class Backend:
         # (the re-added odometry is applied before the judgement reads the graph)
         if self.drift_every and self._count % self.drift_every == 0 and self._correct_drift():
             values = self._update_everything(k)
-        if self.judge_every and self._count % self.judge_every == 0 and self._judge():
+        if self.judge_every and self._count % self.judge_every == 0 and self.judge(self.graph, self.odometry, self._keyframes):
             values = self._update_everything(k)
         self._previous = (kf, values.atPose3(X(k)).matrix())
         return observations, observed, values
@@ -224,41 +220,6 @@ class Backend:
         for previous, kf in zip(self._keyframes, self._keyframes[1:]):
             self.graph.add_odometry(kf.index, self.odometry.factor(previous, kf))
         return True
-
-    def _judge(self) -> bool:
-        """If a plane-to-BIM factor matched since the last judgement misfits beyond the robust
-        alignment's threshold, judge them all over the graph so far (`RobustAlignment.decide`)
-        and give each its verdict's factor: with the robust kernel alone, a wall built off plan
-        that the walk sees first holds the alignment, and each sound wall seen after it is
-        outvoted alone (`isam2.judge_every`). Whether it judged."""
-        matched = [lm for lm in self.landmarks.items if lm.face is not None and lm.frozen is None]
-        matches = [(lm.id, lm.face) for lm in matched]
-        new = [lm for lm in matched if (lm.id, lm.face) not in self.judge.verdicts]
-        if len(matches) < 3 or not new or not self.judge.misfits(
-                [(lm.id, lm.face) for lm in new], self.graph.estimate(bim_keys(new))):
-            return False
-        # (on the reduced graph: GNC alone took 0.05-0.6 s a judgement on the simulated walks,
-        # against 0.5-2 s on the whole graph, with the same verdicts; with the tolerance
-        # estimate at four tolerances, up to 0.7 s there and 4.3 s with 56 faces matched at once)
-        graph_with, point = reduced(self._stiff_rest(), self.graph.estimate(), matched)
-        self.judge.decide(matches, graph_with, point)
-        for lm in matched:
-            lm.alignment = self.judge.verdicts[lm.id, lm.face]
-            self.graph.set_bim(lm.id, self.judge.judged_factor(lm))
-        return True
-
-    def _stiff_rest(self) -> gtsam.NonlinearFactorGraph:
-        """Every factor but the plane-to-BIM ones, with the odometry's noise scaled by
-        `isam2.judge_odometry_scale`: the graph the judgement decides on. Under the noise as
-        given (a front-end's conservative default) the walk bends around a wall built off plan
-        that the first room shows, until its misfit looks like noise (office 1: walls built 4.0-6.6 cm
-        off ended at 1.7 sigma, kept)."""
-        if self._stiff is None or self._stiff.drift is not self.odometry.drift:
-            self._stiff = self.odometry.scaled(self.cfg.isam2.judge_odometry_scale)
-        rest = self.graph.without_bim(odometry=False)
-        for previous, kf in zip(self._keyframes, self._keyframes[1:]):
-            rest.add(self._stiff.factor(previous, kf))
-        return rest
 
     def _match_observations(self, k: int, observations: list[Observation], T_S_C: np.ndarray) -> list[int | None]:
         matches = [j for j, _ in self.slam.associate(observations, T_S_C, self.landmarks)]

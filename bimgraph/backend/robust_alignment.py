@@ -7,7 +7,7 @@ decide them, and it is measured against them. No I/O; the graph comes from the e
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 import gtsam
 import numpy as np
@@ -15,46 +15,15 @@ from scipy.stats import chi2
 
 from bimgraph.backend import gnc, tolerance
 from bimgraph.backend.associate_bim import FaceIndex
-from bimgraph.backend.graph import E, L, X, BatchSolver, FactorBuilder, bim_keys
+from bimgraph.backend.graph import E, BatchSolver, FactorBuilder, bim_keys, landmark_keys
 from bimgraph.backend.landmarks import DIRECTION, KEPT, OUT, Landmark, LandmarkTable
 from bimgraph.backend.marginals import JointMarginals
+from bimgraph.backend.reduced import Reduced
 from bimgraph.config import OfflineConfig
 from factors.plane import face_tolerance_coordinates, local_plane_error
 
 # An offset tolerance that leaves the offset to the observations (metres: no wall is this far off).
 _FREE_OFFSET_M = 100.0
-
-# The estimator's whole graph, with each matched landmark's plane-to-BIM factor from the callable.
-GraphWith = Callable[[Callable[[Landmark], gtsam.NonlinearFactor | None]], gtsam.NonlinearFactorGraph]
-
-
-def reduced(rest: gtsam.NonlinearFactorGraph, values: gtsam.Values,
-            landmarks: list[Landmark]) -> tuple[GraphWith, gtsam.Values]:
-    """What `decide` needs to judge these matched landmarks, with the rest of the graph (`rest`:
-    every factor but the plane-to-BIM ones) as its Gaussian marginal at `values` on the judged
-    variables (the extrinsic, the landmarks and their anchors; a `LinearContainerFactor`), so that
-    graduated non-convexity's many solves are of a few dozen variables, not of the whole walk.
-    Returns the `GraphWith` over that marginal and the judged variables' values."""
-    keys = bim_keys(landmarks)
-    marginal = rest.linearize(values).marginal(gtsam.KeyVector(keys))
-    planes = {L(lm.id) for lm in landmarks}
-    point = gtsam.Values()
-    for key in keys:
-        point.insert(key, values.atOrientedPlane3(key) if key in planes else values.atPose3(key))
-    # one dense factor: the marginal is dense in these variables anyway, and as the chain of
-    # conditionals it comes in, each solve re-assembled it (2000 synthetic keyframes: the
-    # robust alignment's solves 3.9 -> 3.1 s, the same estimate)
-    linear = gtsam.NonlinearFactorGraph()
-    linear.add(gtsam.LinearContainerFactor(gtsam.HessianFactor(marginal), point))
-
-    def graph_with(bim_factor):
-        graph = gtsam.NonlinearFactorGraph(linear)
-        for lm in landmarks:
-            if (factor := bim_factor(lm)) is not None:
-                graph.add(factor)
-        return graph
-
-    return graph_with, point
 
 
 class RobustAlignment:
@@ -91,7 +60,7 @@ class RobustAlignment:
             return self.factor(lm, 1.0, self.verdicts[lm.id, lm.face])
         return self.factor(lm, None, KEPT)
 
-    def decide(self, matches: list[tuple[int, str]], graph_with: GraphWith, values: gtsam.Values) -> gtsam.Values:
+    def decide(self, matches: list[tuple[int, str]], reduced: Reduced) -> gtsam.Values:
         """Judge which plane-to-BIM factors the alignment keeps whole (`KEPT`); of the others,
         the wall's direction is kept where it fits and only its offset is left to the
         observations (`DIRECTION`: built parallel to plan, off its line), else the factor
@@ -119,19 +88,20 @@ class RobustAlignment:
         (`gnc_tolerance_steps`, halving down to the floor), and the best of those replaces the
         configured tolerance's if it beats it by a margin (deviation seed 4 at 30 % clutter:
         4.5 cm off, now 0.3). Last, each kept factor of the winner is judged against the rest
-        of the graph (`studentized`). `matches` are the (landmark, face) pairs to judge;
-        returns the estimate under the verdicts."""
+        of the graph (`studentized`). `matches` are the (landmark, face) pairs to judge, on
+        the graph `reduced` to them (`bimgraph.backend.reduced`); returns the estimate under
+        the verdicts, in its variables."""
         cfg = self.cfg
         solve = BatchSolver(cfg.gnc_iterations, cfg.relative_error_tol)
-        tolerance, best = self.tolerance, []
+        tolerance, best, values = self.tolerance, [], reduced.point
         for normal in self._normal_ladder():
             starts, candidates = [values], []
             self.tolerance = (normal, tolerance[1])
-            if (consensus := self._gnc(matches, graph_with, values, solve)) is not None:
+            if (consensus := self._gnc(matches, reduced, values, solve)) is not None:
                 starts.append(consensus)
             for start in starts:
                 self.tolerance = (normal, tolerance[1])
-                candidates.append(self._tightened(matches, graph_with, start, solve))
+                candidates.append(self._tightened(matches, reduced, start, solve))
             best.append(min(candidates, key=lambda candidate: candidate[0]))
         # a tighter start's verdicts replace those of the current tolerance only if they explain
         # the data clearly better (a likelihood-ratio test on the tolerance's two parameters): on a
@@ -141,7 +111,7 @@ class RobustAlignment:
         tighter = min(best[1:], key=lambda candidate: candidate[0], default=None)
         chosen = tighter if tighter is not None and tighter[0] < best[0][0] - margin else best[0]
         _, self.tolerance, self.verdicts, values, graph = chosen
-        return self._studentize(graph_with, values, graph, solve)
+        return self._studentize(reduced, values, graph, solve)
 
     def _normal_ladder(self) -> list[float]:
         """The normal tolerances `decide` starts from: the current one, halved down to the floor
@@ -151,34 +121,37 @@ class RobustAlignment:
             ladder.append(ladder[-1] / 2)
         return ladder
 
-    def _gnc(self, matches, graph_with: GraphWith, values: gtsam.Values, solve: BatchSolver) -> gtsam.Values | None:
+    def _gnc(self, matches, reduced: Reduced, values: gtsam.Values, solve: BatchSolver) -> gtsam.Values | None:
         """Graduated non-convexity's estimate from `values` at the tolerance as it stands; None
         if every factor already fits (nothing to decide)."""
         c2 = chi2.ppf(self.cfg.gnc_probability, 3)
-        r2 = self._squared_residuals(matches, values)
+        r2 = self._squared_residuals(matches, values, reduced.landmarks)
         mu = gnc.initial_mu(r2, c2)
         if mu is None:
             return None
         for mu in gnc.schedule(mu, self.cfg.gnc_step):
             weights = dict(zip(matches, gnc.gm_weights(r2, mu, c2)))
-            values = solve(graph_with(lambda lm: self.factor(lm, weights[lm.id, lm.face])), values)
-            r2 = self._squared_residuals(matches, values)
+            values = solve(reduced.graph(lambda lm: self.factor(lm, weights[lm.id, lm.face])), values)
+            r2 = self._squared_residuals(matches, values, reduced.landmarks)
         return values
 
-    def adopt(self, matches: list[tuple[int, str]], graph_with: GraphWith, values: gtsam.Values) -> gtsam.Values:
-        """Judge `matches` at `values` as they stand (a consensus found elsewhere: the
-        offline estimator's challenge), then tighten the tolerance and test each kept factor
-        as `decide` does after choosing. Returns the estimate under the verdicts."""
+    def adopt(self, matches: list[tuple[int, str]], reduced: Reduced) -> gtsam.Values:
+        """Judge `matches` where `reduced` was taken (a consensus found elsewhere: the offline
+        estimator's challenge), then tighten the tolerance and test each kept factor as
+        `decide` does after choosing. Returns the estimate under the verdicts, in the reduced
+        graph's variables."""
         solve = BatchSolver(self.cfg.gnc_iterations, self.cfg.relative_error_tol)
-        _, self.tolerance, self.verdicts, values, graph = self._tightened(matches, graph_with, values, solve)
-        return self._studentize(graph_with, values, graph, solve)
+        _, self.tolerance, self.verdicts, values, graph = self._tightened(matches, reduced, reduced.point, solve)
+        return self._studentize(reduced, values, graph, solve)
 
-    def verdicts_at(self, matches: list[tuple[int, str]], values: gtsam.Values) -> dict[tuple[int, str], str]:
-        """Each plane-to-BIM factor's verdict at `values`: kept whole if its squared whitened
-        residual is below GNC's threshold, else its direction if that is, else out."""
+    def verdicts_at(self, matches: list[tuple[int, str]], values: gtsam.Values,
+                    landmarks: Mapping[int, Landmark] | None = None) -> dict[tuple[int, str], str]:
+        """Each plane-to-BIM factor's verdict at `values` (of the estimator's graph, or of the
+        reduced one, whose `landmarks` are given): kept whole if its squared whitened residual
+        is below GNC's threshold, else its direction if that is, else out."""
         c2, c2_direction = chi2.ppf(self.cfg.gnc_probability, 3), chi2.ppf(self.cfg.gnc_probability, 2)
-        whole = self._squared_residuals(matches, values) <= c2
-        direction = self._squared_residuals(matches, values, free_offset=True) <= c2_direction
+        whole = self._squared_residuals(matches, values, landmarks) <= c2
+        direction = self._squared_residuals(matches, values, landmarks, free_offset=True) <= c2_direction
         return {m: KEPT if w else DIRECTION if d else OUT for m, w, d in zip(matches, whole, direction)}
 
     def tls_cost(self, without_bim: gtsam.NonlinearFactorGraph, matches: list[tuple[int, str]], values: gtsam.Values) -> float:
@@ -188,31 +161,32 @@ class RobustAlignment:
         return without_bim.error(values) + 0.5 * float(np.minimum(self._squared_residuals(matches, values), c2).sum())
 
     def factors(self, verdicts: dict[tuple[int, str], str]) -> Callable[[Landmark], gtsam.NonlinearFactor | None]:
-        """Each landmark's plane-to-BIM factor under `verdicts`, Gaussian (for a `GraphWith`)."""
+        """Each landmark's plane-to-BIM factor under `verdicts`, Gaussian (for the estimator's
+        graph or `Reduced.graph`)."""
         return lambda lm: self.factor(lm, 1.0, verdicts[lm.id, lm.face])
 
-    def _judged(self, matches, graph_with: GraphWith, values: gtsam.Values, solve: BatchSolver):
+    def _judged(self, matches, reduced: Reduced, values: gtsam.Values, solve: BatchSolver):
         """The verdicts at `values`, the estimate re-solved under them, and the graph it
         solves: (verdicts, estimate, graph)."""
-        verdicts = self.verdicts_at(matches, values)
-        graph = graph_with(self.factors(verdicts))
+        verdicts = self.verdicts_at(matches, values, reduced.landmarks)
+        graph = reduced.graph(self.factors(verdicts))
         return verdicts, solve(graph, values), graph
 
-    def _tightened(self, matches, graph_with: GraphWith, start: gtsam.Values, solve: BatchSolver):
+    def _tightened(self, matches, reduced: Reduced, start: gtsam.Values, solve: BatchSolver):
         """The candidate judged at `start` (`_judged`), with the tolerance tightened to what its
         kept walls show, re-judged under it until it settles: (likelihood cost, tolerance,
         verdicts, estimate, graph). Leaves `tolerance` and `verdicts` as the candidate's."""
         cfg = self.cfg
-        self.verdicts, values, graph = self._judged(matches, graph_with, start, solve)
+        self.verdicts, values, graph = self._judged(matches, reduced, start, solve)
         for _ in range(cfg.tolerance_rounds if cfg.estimate_tolerance else 0):
-            estimated = self._estimated_tolerance(graph, values)
+            estimated = self._estimated_tolerance(graph, values, reduced.landmarks)
             if np.allclose(estimated, self.tolerance, rtol=0.1):
                 break
             self.tolerance = estimated
-            self.verdicts, values, graph = self._judged(matches, graph_with, values, solve)
-        return self._likelihood_cost(matches, graph_with, values), self.tolerance, self.verdicts, values, graph
+            self.verdicts, values, graph = self._judged(matches, reduced, values, solve)
+        return self._likelihood_cost(matches, reduced, values), self.tolerance, self.verdicts, values, graph
 
-    def _likelihood_cost(self, matches, graph_with: GraphWith, values: gtsam.Values) -> float:
+    def _likelihood_cost(self, matches, reduced: Reduced, values: gtsam.Values) -> float:
         """The truncated least squares objective as a negative log-likelihood that candidates
         judged under different tolerances can be compared by: every factor but the plane-to-BIM
         ones, plus for each of those `min(r^2 / 2 + log det, u)`, where `log det` is the log of
@@ -224,22 +198,22 @@ class RobustAlignment:
             return 2.0 * np.log(tolerance[0]) + np.log(tolerance[1])
 
         off_plan = 0.5 * chi2.ppf(self.cfg.gnc_probability, 3) + log_det(self.build.bim_tolerance())
-        r2 = self._squared_residuals(matches, values)
-        return graph_with(lambda lm: None).error(values) + float(np.minimum(0.5 * r2 + log_det(self.tolerance), off_plan).sum())
+        r2 = self._squared_residuals(matches, values, reduced.landmarks)
+        return reduced.graph(lambda lm: None).error(values) + float(np.minimum(0.5 * r2 + log_det(self.tolerance), off_plan).sum())
 
-    def _studentize(self, graph_with: GraphWith, values: gtsam.Values, graph: gtsam.NonlinearFactorGraph,
+    def _studentize(self, reduced: Reduced, values: gtsam.Values, graph: gtsam.NonlinearFactorGraph,
                     solve: BatchSolver) -> gtsam.Values:
         """Each kept factor tested against the rest (`studentized`), the worst failing one
         demoted and the graph re-solved until all pass. Returns the estimate under the verdicts."""
-        while self.cfg.studentized and (demoted := self._worst_studentized(graph, values)) is not None:
+        while self.cfg.studentized and (demoted := self._worst_studentized(graph, values, reduced.landmarks)) is not None:
             pair, verdict = demoted
             self.verdicts[pair] = verdict
-            graph = graph_with(self.factors(self.verdicts))
+            graph = reduced.graph(self.factors(self.verdicts))
             values = solve(graph, values)
         return values
 
-    def _worst_studentized(self, graph: gtsam.NonlinearFactorGraph,
-                           values: gtsam.Values) -> tuple[tuple[int, str], str] | None:
+    def _worst_studentized(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                           landmarks: Mapping[int, Landmark]) -> tuple[tuple[int, str], str] | None:
         """The plane-to-BIM factor of `graph` (Gaussian, solved at `values`) that fails its
         tests worst when measured against the rest of the graph (`tolerance.studentized`), with
         the verdict it fails to (`DIRECTION` if only its offset fails, else `OUT`), or None if
@@ -253,14 +227,14 @@ class RobustAlignment:
         direction alone is tested."""
         p = self.cfg.studentized_probability
         c2_offset, c2_direction = chi2.ppf(p, 1), chi2.ppf(p, 2)
-        joint = self._joint_marginals(graph, values)
+        joint = self._joint_marginals(graph, values, landmarks)
         worst, worst_ratio = None, 1.0
         for pair, verdict in self.verdicts.items():
             if verdict == OUT:
                 continue
             j, face = pair
-            A, e = self._deviation_residual(j, face, values)
-            cov = joint([E, X(self.landmarks[j].anchor), L(j)])
+            A, e = self._deviation_residual(landmarks[j], face, values)
+            cov = joint(_judged_keys(landmarks[j]))
             both = tolerance.studentized(A, e, cov) if verdict == KEPT else None
             if both is not None:
                 offset, direction = both[0] / c2_offset, both[1] / c2_direction
@@ -271,40 +245,51 @@ class RobustAlignment:
                 worst, worst_ratio = (pair, OUT if direction > 1.0 else DIRECTION), max(offset, direction)
         return worst
 
-    def _deviation_residual(self, j: int, face: str, values: gtsam.Values) -> tuple[np.ndarray, np.ndarray]:
-        """Landmark j's plane-to-BIM residual against `face` and its Jacobian over (E, anchor,
-        plane), in deviation coordinates (offset at the face centre, two tilts) whitened by
-        the tolerance: the components `bimgraph.backend.tolerance` tests and estimates apart."""
-        lm, row = self.landmarks[j], self.faces.row[face]
+    def _deviation_residual(self, lm: Landmark, face: str, values: gtsam.Values) -> tuple[np.ndarray, np.ndarray]:
+        """The landmark's plane-to-BIM residual against `face` and its Jacobian over
+        `_judged_keys`, in deviation coordinates (offset at the face centre, two tilts)
+        whitened by the tolerance: the components `bimgraph.backend.tolerance` tests and
+        estimates apart."""
+        row, (anchor, plane) = self.faces.row[face], landmark_keys(lm.anchor, lm.id)
         plane_B = self.faces.planes[row]
-        e, J = local_plane_error(values.atPose3(E), values.atPose3(X(lm.anchor)), values.atOrientedPlane3(L(j)), plane_B,
+        e, J = local_plane_error(values.atPose3(E), values.atPose3(anchor), values.atOrientedPlane3(plane), plane_B,
                                  jacobians=True)
         whiten = 1.0 / np.array([self.tolerance[1], self.tolerance[0], self.tolerance[0]])
         M = whiten[:, None] * face_tolerance_coordinates(gtsam.Unit3(plane_B[:3]).basis(), self.faces.centres[row])
         return M @ np.hstack(J), M @ e
 
-    def _estimated_tolerance(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[float, float]:
+    def _estimated_tolerance(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                             landmarks: Mapping[int, Landmark]) -> tuple[float, float]:
         """The tolerance the kept plane-to-BIM factors show at `values`, solved on `graph` (the
         graph under the current verdicts, Gaussian): `bimgraph.backend.tolerance`."""
-        joint = self._joint_marginals(graph, values)
+        joint = self._joint_marginals(graph, values, landmarks)
         terms = []
         for (j, face), verdict in self.verdicts.items():
             if verdict == KEPT:
-                A, e = self._deviation_residual(j, face, values)
-                terms.append(tolerance.redundancy(A, e, joint([E, X(self.landmarks[j].anchor), L(j)])))
+                A, e = self._deviation_residual(landmarks[j], face, values)
+                terms.append(tolerance.redundancy(A, e, joint(_judged_keys(landmarks[j]))))
         cfg = self.cfg
         factors = tolerance.variance_factors(terms, cfg.tolerance_confidence, min_samples=cfg.tolerance_min_samples)
         return tolerance.tightened(self.tolerance, factors, self.build.bim_tolerance(),
                                    (np.radians(cfg.tolerance_floor_deg), cfg.tolerance_floor_m))
 
-    def _joint_marginals(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> JointMarginals:
+    def _joint_marginals(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values,
+                         landmarks: Mapping[int, Landmark]) -> JointMarginals:
         """The joint marginals of `graph` at `values` among the judged landmarks, their anchors
         and the extrinsic."""
-        judged = [self.landmarks[j] for (j, _), verdict in self.verdicts.items() if verdict != OUT]
+        judged = [landmarks[j] for (j, _), verdict in self.verdicts.items() if verdict != OUT]
         return JointMarginals(graph, values, bim_keys(judged))
 
-    def _squared_residuals(self, matches: list[tuple[int, str]], values: gtsam.Values, free_offset: bool = False) -> np.ndarray:
+    def _squared_residuals(self, matches: list[tuple[int, str]], values: gtsam.Values,
+                           landmarks: Mapping[int, Landmark] | None = None, free_offset: bool = False) -> np.ndarray:
         """Squared whitened residuals of the plane-to-BIM factors (Gaussian, weight 1), or of
-        their direction alone."""
+        their direction alone, at `values` of the graph that holds `landmarks` (default the
+        estimator's)."""
+        landmarks = self.landmarks if landmarks is None else landmarks
         verdict = DIRECTION if free_offset else KEPT
-        return np.array([2.0 * self.factor(self.landmarks[j], 1.0, verdict).error(values) for j, _ in matches])
+        return np.array([2.0 * self.factor(landmarks[j], 1.0, verdict).error(values) for j, _ in matches])
+
+
+def _judged_keys(lm: Landmark) -> list[int]:
+    """The variables of the landmark's plane-to-BIM factor, in its Jacobians' order."""
+    return [E, *landmark_keys(lm.anchor, lm.id)]

@@ -1,0 +1,107 @@
+"""The graph the robust alignment judges on: every factor but the plane-to-BIM ones reduced to
+its Gaussian marginal on the extrinsic and the judged landmarks, each held in S. No I/O.
+
+Graduated non-convexity and the tolerance estimate solve the judged graph dozens of times, so
+it is kept small: the rest of the walk enters as one dense Gaussian factor. Each landmark
+lives in its anchor keyframe, and with its anchor that is 9 dimensions a landmark, the anchor's
+6 only there to carry the plane's uncertainty. The marginal is taken on the planes expressed in
+S instead, 3 dimensions a landmark: the synthetic world's largest judgement, 56 landmarks, went
+from 510 dimensions to 174 (one elimination 13.6 -> 1.2 ms). The plane in S is
+`plane_S = plane_A.transform(T_S_A^-1)`; its tangent is, to first order, a linear function of
+the anchor's and the anchored plane's, so the marginal on (E, anchors, planes) becomes one on
+(E, planes in S) exactly, by eliminating the anchors and anchored planes under those linear
+equations as hard constraints (gtsam eliminates constrained rows by QR).
+
+There the plane-to-BIM factors are the same C++ factors with the frame S as the anchor: a pose
+variable `S_FRAME` pinned at the identity (gtsam's Python wrapper has no plane-to-pose factor
+with this residual that takes a fixed pose). Its pin's sigma, 1e-8, leaves it moving by about
+1e-12 under the faces' pull: nothing the judgement can see.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import gtsam
+import numpy as np
+
+from bimgraph.backend.graph import E, L, PLANE_S, S_FRAME, X, bim_keys
+from bimgraph.backend.landmarks import Landmark
+from factors import predict_local_plane
+
+_PIN_SIGMA = 1e-8
+
+
+def _factors(graph: gtsam.GaussianFactorGraph):
+    return (graph.at(i) for i in range(graph.size()))
+
+
+def tangent_of_plane(plane: np.ndarray) -> np.ndarray:
+    """The 3x4 map from a change of a plane in R^4 to gtsam's `OrientedPlane3` tangent at
+    `plane`: its `Unit3` basis for the normal, the offset as it is."""
+    D = np.zeros((3, 4))
+    D[:2, :3] = gtsam.Unit3(np.asarray(plane[:3], dtype=float)).basis().T
+    D[2, 3] = 1.0
+    return D
+
+
+@dataclasses.dataclass
+class Reduced:
+    """The reduced graph: `graph(bim_factor)` is the rest's marginal plus each landmark's
+    plane-to-BIM factor from `bim_factor` (None: none); `point` holds the extrinsic, `S_FRAME`
+    and each landmark's plane in S where the marginal was taken; `landmarks` are the judged
+    landmarks as this graph holds them (in S: `anchor` None), by id."""
+
+    marginal: gtsam.NonlinearFactorGraph
+    point: gtsam.Values
+    landmarks: dict[int, Landmark]
+    T_S_A: dict[int, gtsam.Pose3]  # each landmark's anchor pose where the marginal was taken
+
+    def graph(self, bim_factor: Callable[[Landmark], gtsam.NonlinearFactor | None]) -> gtsam.NonlinearFactorGraph:
+        graph = gtsam.NonlinearFactorGraph(self.marginal)
+        for lm in self.landmarks.values():
+            if (factor := bim_factor(lm)) is not None:
+                graph.add(factor)
+        return graph
+
+    def anchored(self, values: gtsam.Values) -> gtsam.Values:
+        """An estimate of this graph (`values`) in the estimator's variables: the extrinsic,
+        and each landmark's plane in its anchor as the anchor stood where the marginal was
+        taken (the reduced graph does not move anchors)."""
+        out = gtsam.Values()
+        out.insert(E, values.atPose3(E))
+        for j, T_S_A in self.T_S_A.items():
+            out.insert(L(j), values.atOrientedPlane3(PLANE_S(j)).transform(T_S_A))
+        return out
+
+
+def reduced(rest: gtsam.NonlinearFactorGraph, values: gtsam.Values, landmarks: list[Landmark]) -> Reduced:
+    """The reduced graph of these matched landmarks, with the rest of the graph (`rest`: every
+    factor but the plane-to-BIM ones) as its Gaussian marginal at `values` on the extrinsic
+    and the landmarks in S (a `LinearContainerFactor`)."""
+    marginal = gtsam.GaussianFactorGraph()
+    marginal.push_back(rest.linearize(values).marginal(gtsam.KeyVector(bim_keys(landmarks))))
+    point, T_S_A = gtsam.Values(), {}
+    point.insert(E, values.atPose3(E))
+    for lm in landmarks:
+        anchor, plane = X(lm.anchor), L(lm.id)
+        T_S_A[lm.id] = values.atPose3(anchor)
+        plane_S, J = predict_local_plane(gtsam.Pose3(), T_S_A[lm.id], values.atOrientedPlane3(plane), jacobian=True)
+        J = tangent_of_plane(plane_S) @ J[:, 6:]  # (anchor, anchored plane) -> plane in S
+        marginal.add(gtsam.JacobianFactor(PLANE_S(lm.id), np.eye(3), anchor, -J[:, :6], plane, -J[:, 6:],
+                                          np.zeros(3), gtsam.noiseModel.Constrained.All(3)))
+        point.insert(PLANE_S(lm.id), gtsam.OrientedPlane3(plane_S))
+    in_S = gtsam.GaussianFactorGraph()
+    for factor in _factors(marginal.marginal(gtsam.KeyVector(sorted(point.keys())))):
+        # (a factor QR made with the constraints keeps their noise model type with every sigma
+        # non-zero, which the Hessian form refuses: the same factor with its weights baked in)
+        in_S.push_back(factor.whiten() if isinstance(factor, gtsam.JacobianFactor) else factor)
+    # one dense factor: the marginal is dense in these variables anyway, and as the chain of
+    # conditionals it comes in, each solve re-assembled it (2000 synthetic keyframes: the
+    # robust alignment's solves 3.9 -> 3.1 s, the same estimate)
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(gtsam.LinearContainerFactor(gtsam.HessianFactor(in_S), point))
+    graph.add(gtsam.PriorFactorPose3(S_FRAME, gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, _PIN_SIGMA)))
+    point.insert(S_FRAME, gtsam.Pose3())
+    return Reduced(graph, point, {lm.id: dataclasses.replace(lm, anchor=None) for lm in landmarks}, T_S_A)

@@ -212,3 +212,25 @@ def test_same_plane_d2_of_two_landmarks():
     one_anchor = np.eye(12) * 1e-12
     one_anchor[11, 11] = 0.01**2
     assert same_plane_d2(plane_1, T_S_A1, plane_1 + np.r_[0, 0, 0, 0.03], T_S_A1, one_anchor) == pytest.approx(9.0, rel=1e-3)
+
+
+def test_behind_finds_the_parallel_planes_on_the_wall_side():
+    """`matches.behind`: of landmarks parallel to one (a partition 1 m before x = 3, facing -x),
+    those whose planes lie within the gap range on the side their normals turn away from (the
+    wall side), not those before it, turned away from it, or merged."""
+    from bimgraph.backend.matches import behind
+
+    table = LandmarkTable()
+    facing_minus_x = [np.r_[-1.0, 0.0, 0.0, 2.0],  # the partition, at x = 2
+                      np.r_[-1.0, 0.0, 0.0, 3.0],  # 1 m behind it: the wall
+                      np.r_[-1.0, 0.0, 0.0, 2.04],  # 4 cm behind: too near
+                      np.r_[-1.0, 0.0, 0.0, 1.5],  # before it
+                      normalise_plane(np.r_[-1.0, 0.9, 0.0, 3.0]),  # behind, turned 42 deg
+                      np.r_[-1.0, 0.0, 0.0, 2.5],  # 0.5 m behind, merged away
+                      np.r_[-1.0, 0.0, 0.0, 6.0]]  # 4 m behind: beyond the range
+    for j, plane_S in enumerate(facing_minus_x):
+        table.add(Landmark(j, j, plane_S, np.eye(3) * 1e-4, np.eye(4)))
+    table.active[5] = False
+    assert behind(table[0], table, np.cos(np.radians(20.0)), 0.05, 2.0) == [1]
+    assert behind(table[1], table, np.cos(np.radians(20.0)), 0.05, 2.0) == []
+    assert behind(table[3], table, np.cos(np.radians(20.0)), 0.05, 2.0) == [0, 1, 2]

@@ -13,7 +13,7 @@ import numpy as np
 from bimgraph.backend.associate_bim import FaceIndex
 from bimgraph.backend.associate_slam import same_plane_d2
 from bimgraph.backend.graph import L, X
-from bimgraph.backend.landmarks import Landmark
+from bimgraph.backend.landmarks import Landmark, LandmarkTable
 from bimgraph.backend.records import Listener
 from factors.plane import predict_local_plane
 
@@ -39,6 +39,20 @@ def one_plane_d2(a: Landmark, b: Landmark, joint: Callable[[list[int]], np.ndarr
     `joint(keys)` the joint marginal covariance of keys in the order given."""
     keys = [X(a.anchor)] + ([X(b.anchor)] if b.anchor != a.anchor else []) + [L(b.id), L(a.id)]
     return same_plane_d2(a.plane_A, a.T_S_A, b.plane_A, b.T_S_A, joint(keys))
+
+
+def behind(lm: Landmark, table: LandmarkTable, cos_max: float, min_gap_m: float,
+           max_gap_m: float) -> list[int]:
+    """The active landmarks parallel to `lm` (normals within `cos_max`, in S) whose planes lie
+    `min_gap_m` to `max_gap_m` behind it: `lm`'s centre (its extent's, else its plane's foot)
+    is that far in front of them, on the side their normals point to, the free space a wall
+    faces."""
+    n_S, d_S = table.planes_S[lm.id, :3], table.planes_S[lm.id, 3]
+    centre = table.centres_S[lm.id] if np.isfinite(table.radii[lm.id]) else -d_S * n_S
+    parallel = table.planes_S[:, :3] @ n_S >= cos_max
+    gap = table.planes_S[:, :3] @ centre + table.planes_S[:, 3]
+    near = (gap >= min_gap_m) & (gap <= max_gap_m)
+    return [int(k) for k in np.flatnonzero(table.active & parallel & near) if k != lm.id]
 
 
 def offset_sigma(plane_S: np.ndarray, T_S_B: np.ndarray, centre_B: np.ndarray, cov_T_B_S: np.ndarray) -> float:

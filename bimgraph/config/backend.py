@@ -56,6 +56,8 @@ class BimAssociationConfig(Section):
     coplanar_normal_deg: float = Field(0.5, gt=0, description="faces this close in normal...")
     coplanar_offset_m: float = Field(0.01, gt=0, description="...and in offset are one plane (sections of one wall), matched as a group")
     ambiguity_margin: float = Field(9.0, ge=0, description="a match is deferred while a second face scores within this many chi-square units of the best")
+    shadow_gap_m: float = Field(0.05, ge=0, description="online, a match waits while another landmark parallel to it, at least this far behind it (on the wall's side)...")
+    shadow_sigmas: float = Field(3.0, ge=0, description="...and no farther than this many sigmas of the extrinsic's uncertainty at the face, scores for the same face and is not one plane with it: a partition or a cabinet before a wall passes the gate with it while the extrinsic is uncertain, and the wall is the one behind; once the extrinsic is sure, the gate decides")
     revision_normal_deg: float = Field(3.0, gt=0, description="an associated landmark whose normal strays more than this from its face (in B, current estimate) is unmatched")
     revision_plumb_deg: float = Field(2.5, gt=0, description="...or whose normal leans more than this further out of plumb than its face's (a face nearer vertical than level): a board leaning on the wall it hides, not the wall built out of plumb (2.5 deg is 11 cm over a 2.5 m storey)")
     revision_offset_m: float = Field(0.25, gt=0, description="an associated landmark whose offset strays more than this from its face is unmatched...")

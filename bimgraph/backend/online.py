@@ -351,6 +351,8 @@ class Backend:
         cm; online the extrinsic ended 24 cm off, offline 0.3). Once the extrinsic is sure,
         the gate alone decides: a plane seen behind a wall through its door is no wall."""
         lm, cfg = self.landmarks[m.landmark], self.cfg.bim_association
+        if not behind(lm, self.landmarks, self.bim.cos_max, cfg.shadow_gap_m, np.inf):
+            return False  # (before the extrinsic's marginal, which costs an iSAM2 query)
         row = self.faces.row[m.face]
         sigma = offset_sigma(self.landmarks.planes_S[lm.id], T_S_B.matrix(), self.faces.centres[row],
                              self.extrinsic_covariance(T_S_B))

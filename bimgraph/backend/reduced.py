@@ -13,9 +13,10 @@ the anchor's and the anchored plane's, so the marginal on (E, anchors, planes) b
 equations as hard constraints (gtsam eliminates constrained rows by QR).
 
 There the plane-to-BIM factors are the same C++ factors with the frame S as the anchor: a pose
-variable `S_FRAME` pinned at the identity (gtsam's Python wrapper has no plane-to-pose factor
-with this residual that takes a fixed pose). Its pin's sigma, 1e-8, leaves it moving by about
-1e-12 under the faces' pull: nothing the judgement can see.
+variable `S_FRAME` pinned at the identity (gtsam's `OrientedPlane3Factor` takes a plane and a
+pose, but measures the residual in the predicted plane's basis, not the measured one's). Its
+pin's sigma, 1e-8 (rad, m), is a hundred thousand times below the faces' tolerances: the
+judgement cannot move it.
 """
 
 from __future__ import annotations

@@ -231,6 +231,10 @@ def test_behind_finds_the_parallel_planes_on_the_wall_side():
     for j, plane_S in enumerate(facing_minus_x):
         table.add(Landmark(j, j, plane_S, np.eye(3) * 1e-4, np.eye(4)))
     table.active[5] = False
-    assert behind(table[0], table, np.cos(np.radians(20.0)), 0.05, 2.0) == [1]
-    assert behind(table[1], table, np.cos(np.radians(20.0)), 0.05, 2.0) == []
-    assert behind(table[3], table, np.cos(np.radians(20.0)), 0.05, 2.0) == [0, 1, 2]
+    def within(j, max_gap_m=2.0):
+        return [k for k, gap in behind(table[j], table, np.cos(np.radians(20.0)), 0.05).items() if gap <= max_gap_m]
+
+    assert within(0) == [1]
+    assert within(1) == []
+    assert within(3) == [0, 1, 2]
+    assert behind(table[0], table, np.cos(np.radians(20.0)), 0.05) == pytest.approx({1: 1.0, 6: 4.0})

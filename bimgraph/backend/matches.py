@@ -41,18 +41,16 @@ def one_plane_d2(a: Landmark, b: Landmark, joint: Callable[[list[int]], np.ndarr
     return same_plane_d2(a.plane_A, a.T_S_A, b.plane_A, b.T_S_A, joint(keys))
 
 
-def behind(lm: Landmark, table: LandmarkTable, cos_max: float, min_gap_m: float,
-           max_gap_m: float) -> list[int]:
-    """The active landmarks parallel to `lm` (normals within `cos_max`, in S) whose planes lie
-    `min_gap_m` to `max_gap_m` behind it: `lm`'s centre (its extent's, else its plane's foot)
-    is that far in front of them, on the side their normals point to, the free space a wall
-    faces."""
+def behind(lm: Landmark, table: LandmarkTable, cos_max: float, min_gap_m: float) -> dict[int, float]:
+    """The active landmarks parallel to `lm` (normals within `cos_max`, in S) whose planes lie at
+    least `min_gap_m` behind it, each with its gap: `lm`'s centre (its extent's, else its
+    plane's foot) is that far in front of them, on the side their normals point to, the free
+    space a wall faces."""
     n_S, d_S = table.planes_S[lm.id, :3], table.planes_S[lm.id, 3]
     centre = table.centres_S[lm.id] if np.isfinite(table.radii[lm.id]) else -d_S * n_S
     parallel = table.planes_S[:, :3] @ n_S >= cos_max
     gap = table.planes_S[:, :3] @ centre + table.planes_S[:, 3]
-    near = (gap >= min_gap_m) & (gap <= max_gap_m)
-    return [int(k) for k in np.flatnonzero(table.active & parallel & near) if k != lm.id]
+    return {int(k): float(gap[k]) for k in np.flatnonzero(table.active & parallel & (gap >= min_gap_m)) if k != lm.id}
 
 
 def offset_sigma(plane_S: np.ndarray, T_S_B: np.ndarray, centre_B: np.ndarray, cov_T_B_S: np.ndarray) -> float:

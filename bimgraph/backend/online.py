@@ -351,15 +351,16 @@ class Backend:
         cm; online the extrinsic ended 24 cm off, offline 0.3). Once the extrinsic is sure,
         the gate alone decides: a plane seen behind a wall through its door is no wall."""
         lm, cfg = self.landmarks[m.landmark], self.cfg.bim_association
-        if not behind(lm, self.landmarks, self.bim.cos_max, cfg.shadow_gap_m, np.inf):
+        gaps = behind(lm, self.landmarks, self.bim.cos_max, cfg.shadow_gap_m)
+        if not gaps:
             return False  # (before the extrinsic's marginal, which costs an iSAM2 query)
         row = self.faces.row[m.face]
         sigma = offset_sigma(self.landmarks.planes_S[lm.id], T_S_B.matrix(), self.faces.centres[row],
                              self.extrinsic_covariance(T_S_B))
         group = int(self.faces.group[row])
-        for k in behind(lm, self.landmarks, self.bim.cos_max, cfg.shadow_gap_m, cfg.shadow_sigmas * sigma):
+        for k, gap in gaps.items():
             other = self.landmarks[k]
-            if other.face not in (None, m.face) or other.frozen is not None:
+            if gap > cfg.shadow_sigmas * sigma or other.face not in (None, m.face) or other.frozen is not None:
                 continue
             c = candidate(other, T_S_B, self.graph.joint, self.bim)
             if (c is not None and group in self.bim.scores(c)

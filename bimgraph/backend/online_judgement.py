@@ -28,7 +28,6 @@ from bimgraph.sequence.format import Keyframe
 class OnlineJudgement:
     def __init__(self, faces: FaceIndex, build: FactorBuilder, landmarks: LandmarkTable, cfg: BackendConfig):
         self.alignment = RobustAlignment(faces, build, landmarks, cfg.offline.model_copy(update={"studentized": False}))
-        self.landmarks = landmarks
         self.odometry_scale = cfg.isam2.judge_odometry_scale
         self._stiff: OdometryModel | None = None  # the scaled odometry, while the drift it was made with stands
 
@@ -41,7 +40,7 @@ class OnlineJudgement:
         """Judge, if a plane-to-BIM factor matched since the last judgement misfits beyond the
         robust alignment's threshold, and queue each factor as its verdict has it. `odometry`
         and `keyframes` (so far) make the graph's odometry factors. Whether it judged."""
-        matched = [lm for lm in self.landmarks.items if lm.face is not None and lm.frozen is None]
+        matched = [lm for lm in self.alignment.landmarks.items if lm.face is not None and lm.frozen is None]
         matches = [(lm.id, lm.face) for lm in matched]
         new = [lm for lm in matched if (lm.id, lm.face) not in self.alignment.verdicts]
         if len(matches) < 3 or not new or not self.alignment.misfits(

@@ -141,8 +141,8 @@ def test_the_judgement_sees_the_whole_graph_through_its_marginal(offline_runs):
     extrinsic and the judged landmarks held in S (`bimgraph.backend.reduced`): at the point it
     was taken, the reduced graph with the plane-to-BIM factors has the whole graph's joint
     marginals of those, mapped to the planes in S by central differences, so the tolerance
-    estimate and the studentized tests see the same; and its point, mapped back, is the whole
-    graph's estimate."""
+    estimate and the studentized tests see the same; at the whole graph's optimum it is at its
+    own; and its point, mapped back, is the whole graph's estimate."""
     scene, plan, runs = offline_runs
     est, _ = runs[True]
     observations = {kf.index: observations_of(kf, est.online.build) for kf in scene.keyframes}
@@ -171,6 +171,17 @@ def test_the_judgement_sees_the_whole_graph_through_its_marginal(offline_runs):
                 T[6 + 3 * i:9 + 3 * i, starts[key] + k] += (plane_S.localCoordinates(ends[0]) - plane_S.localCoordinates(ends[1])) / (2 * h)
     expected = T @ JointMarginals(whole, values, keys)(keys) @ T.T
     np.testing.assert_allclose(JointMarginals(small, judged.point, keys_S)(keys_S), expected, rtol=1e-5, atol=1e-12)
+
+    # its linear term: the rest pulls against the plane-to-BIM factors, which balance it at the
+    # whole graph's optimum, so the reduced graph is at its own optimum there too
+    # (the whole graph solved to 1e-9: its reduced graph moves E 3e-6; with the term's sign
+    # flipped, 3e-3)
+    solved = BatchSolver(20, 1e-12)(small, judged.point)
+    assert np.linalg.norm(judged.point.atPose3(E).localCoordinates(solved.atPose3(E))) < 1e-5
+    # and, as gtsam's marginal leaves it, the rest's error is zero at the rest's own minimum
+    # (the solvers' relative tolerance reads the error's level)
+    rest = judged.graph(lambda lm: None)
+    assert abs(rest.error(BatchSolver(20, 1e-12)(rest, judged.point))) < 1e-9
 
     back = judged.anchored(judged.point)
     np.testing.assert_allclose(back.atPose3(E).matrix(), values.atPose3(E).matrix(), atol=1e-12)

@@ -388,8 +388,8 @@ def test_online_revises_a_match_no_longer_observed():
         backend.process(kf)
         if kf.index == last_seen[j]:
             if backend.landmarks[j].face is not None:
-                backend._unmatch(backend.landmarks[j], "test")
-            backend._set_face(j, wrong, 0.0)
+                backend.matches.unmatch(backend.landmarks[j], "test")
+            backend.matches.set_face(j, wrong, 0.0)
             matched_at = kf.index
     assert matched_at + cfg.isam2.refresh_every < scene.keyframes[-1].index
     assert backend.landmarks[j].face is None and wrong in backend.landmarks[j].rejected

@@ -63,7 +63,7 @@ class OfflineEstimator:
         # other of two nearly equal consensuses, 10.5 cm off, before `_challenge`: now 2.6 cm)
         self.online = causal or Backend(plane_map, cfg, initial, None, oracle, drift_every=0, judge_every=0,
                                         merge=False, extrinsic_last=False)
-        self.faces, self.bim, self.landmarks = self.online.faces, self.online.bim, self.online.landmarks
+        self.faces, self.bim, self.landmarks = self.online.faces, self.online.matches.bim, self.online.landmarks
         self.oracle = oracle
         self.judge = RobustAlignment(self.faces, self.online.build, self.landmarks, cfg.offline)
         self.odometry = OdometryModel(self.online.build)  # the front-end's drift and noise, as measured
@@ -274,7 +274,7 @@ class OfflineEstimator:
                     values.erase(L(other.id))
                     continue
                 worse = max((keep, other), key=lambda lm: face_misfit(lm, face, self.faces, values.atPose3(E), self.cfg.bim_association))
-                self.online.apart.add((worse.id, face))
+                self.online.matches.apart.add((worse.id, face))
                 unmatch(worse, "not one plane with another landmark of its face", self.listener)
                 break  # the face's other landmarks meet the one left next round
         return changed
@@ -335,7 +335,7 @@ class OfflineEstimator:
             return False
         candidates = [c for c in (candidate(lm, values.atPose3(E), marginals, self.bim) for lm in todo) if c is not None]
         # a face merging took a landmark off would only pull it back: it stays apart
-        matches = [m for m in self.bim.match(candidates) if (m.landmark, m.face) not in self.online.apart]
+        matches = [m for m in self.bim.match(candidates) if (m.landmark, m.face) not in self.online.matches.apart]
         for m in matches:
             lm = self.landmarks[m.landmark]
             lm.face, lm.score = m.face, m.score

@@ -3,7 +3,6 @@ triggers, emitting the causal `T_B_C` and `T_B_S` (with covariance) after every 
 
 from __future__ import annotations
 
-import functools
 import time
 from collections.abc import Mapping
 
@@ -11,18 +10,17 @@ import gtsam
 import numpy as np
 
 from bimgraph.backend.alignment import Alignment, levelled, lock_directions, unlocked_covariance, unobservable_directions
-from bimgraph.backend.associate_bim import BimAssociator, FaceIndex, FaceMatch, candidate
+from bimgraph.backend.associate_bim import FaceIndex
 from bimgraph.backend.associate_slam import Observation, SlamAssociator
 from bimgraph.backend import drift
 from bimgraph.backend.graph import E, L, X, FactorBuilder, FrozenPlane, IncrementalGraph, cov_T_B_S
-from bimgraph.backend.landmarks import KEPT, Landmark, LandmarkTable, observation_points, transform_points
-from bimgraph.backend.matches import behind, face_misfit, offset_sigma, one_plane_d2, revision_reason, unmatch
+from bimgraph.backend.landmarks import Landmark, LandmarkTable, observation_points, transform_points
 from bimgraph.backend.odometry import OdometryModel
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
+from bimgraph.backend.online_bim import OnlineBimAssociation
 from bimgraph.backend.online_judgement import OnlineJudgement
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig, Isam2Config
-from bimgraph.geometry import plane_to_frame
 from bimgraph.sequence.format import Keyframe
 
 Oracle = Mapping[tuple[int, int], "str | None"]
@@ -61,9 +59,7 @@ class Backend:
         self.covariance = covariance
         self.drift_every = cfg.isam2.drift_every if drift_every is None else drift_every
         self.judge_every = cfg.isam2.judge_every if judge_every is None else judge_every
-        self.merge = merge  # False: landmarks of one face stay apart (the offline rounds merge them)
         self.faces = FaceIndex(plane_map, cfg.bim_association)
-        self.bim = BimAssociator(self.faces, cfg.bim_association)
         self.slam = SlamAssociator(cfg.slam_association)
         self.gravity_aligned = initial.gravity_aligned
         if initial.gravity_aligned:
@@ -78,18 +74,15 @@ class Backend:
         self.graph = IncrementalGraph(cfg, self.prior.T_B_S, self.prior.cov, extrinsic_last)
         self.build = self.graph.build
         self.landmarks = LandmarkTable()
-        # (landmark, face) pairs found not one plane with another landmark of the face: the one
-        # farther from it stays apart from it (online here, offline when merging)
-        self.apart: set[tuple[int, str]] = set()
         self.listener = listener or Listener()
         self.oracle = oracle
         self._landmark_of_face: dict[str, int] = {}
         self._previous: tuple[Keyframe, np.ndarray] | None = None  # the keyframe before and its estimate
         self.odometry = OdometryModel(self.build)  # the front-end's drift, taken out as found
         self._keyframes: list[Keyframe] = []  # so far, for the drift's fit
-        self._observations: dict[tuple[int, int], Observation] = {}  # (keyframe, index) -> as seen, for merges
-        self._merged: list[int] = []  # landmarks that took another's observations in this keyframe
         self._count = 0
+        self.matches = OnlineBimAssociation(self.faces, cfg, self.graph, self.landmarks, self.listener,
+                                            self.extrinsic_covariance, self.slam.gate, merge)
         self.judge = OnlineJudgement(self.faces, self.build, self.landmarks, cfg)
 
     # -- the step ---------------------------------------------------------------------------
@@ -125,10 +118,11 @@ class Backend:
 
         # (every landmark on a refresh: a match made while the extrinsic was uncertain, to a
         # plane never seen again, would otherwise never be checked against what it has become)
-        if self._revise(refresh, values.atPose3(E).matrix()) | self._associate(observed, values.atPose3(E)):
+        if self.oracle is None and (self.matches.revise(refresh, values.atPose3(E).matrix())
+                                    | self.matches.associate(observed, values.atPose3(E))):
             for _ in range(self.cfg.isam2.extra_updates):
                 self.graph.update()
-            merged, self._merged = self._merged, []
+            merged = self.matches.take_merged()
             values = self.graph.update(self._keys_of(observed + merged) + [X(k), E])
             self._refresh(values, observed + merged, merged)
         # (the re-added odometry is applied before the judgement reads the graph)
@@ -243,13 +237,12 @@ class Backend:
             face = self.oracle.get((k, obs.index)) if self.oracle is not None else None
             if face is not None:
                 self._landmark_of_face[face] = j
-                self._set_face(j, face, 0.0)
+                self.matches.set_face(j, face, 0.0)
         elif self.landmarks[j].frozen is not None:
             self.graph.add_frozen_observation(k, self.landmarks[j].frozen, obs.plane_C, obs.cov)
         else:
             self.graph.add_observation(j, self.build.observation(k, self.landmarks[j].anchor, j, obs.plane_C, obs.cov))
-        if self.merge:
-            self._observations[k, obs.index] = obs
+        self.matches.seen(k, obs)
         lm = self.landmarks[j]
         lm.add_observation(k, obs.index, transform_points(self.landmarks.T_A_S[j] @ T_S_C, obs.points_C), obs.area,
                            self.cfg.slam_association.extent_max_points)
@@ -278,129 +271,6 @@ class Backend:
         """Copy landmark estimates (and the marginals of `covariances`) from iSAM2 to the cache."""
         self.landmarks.read(values, sorted(set(estimates) | set(covariances)),
                             {j: self.graph.marginal(L(j)) for j in covariances})
-
-    def _set_face(self, j: int, face: str, score: float) -> None:
-        lm = self.landmarks[j]
-        lm.face, lm.score, lm.alignment = face, score, KEPT
-        self.graph.add_bim(j, lm.anchor, self.faces.planes[self.faces.row[face]], self.faces.centres[self.faces.row[face]])
-        self.listener.on_association(j, face, score)
-
-    def _revise(self, landmarks, T_S_B: np.ndarray) -> bool:
-        """Unmatch those of `landmarks` (ids, just refreshed) that no longer fit their face. An
-        offset the extrinsic's own uncertainty explains does not count against a match: site 3
-        with its initial alignment moved to 37 cm off matched a wall across x rightly three
-        times and unmatched it each time 25 cm off, while its factor was still pulling the
-        extrinsic over (causal ATE 21.2 -> 11.7 cm; no other walk of the six, under seven
-        initial alignments, changed)."""
-        if self.oracle is not None:
-            return False
-        changed = False
-
-        @functools.cache
-        def extrinsic_cov() -> np.ndarray:  # (asked for only where an offset is past the limit)
-            return self.extrinsic_covariance(gtsam.Pose3(T_S_B))
-
-        def sigma(j: int, face: str) -> float:
-            return offset_sigma(self.landmarks.planes_S[j], T_S_B, self.faces.centres[self.faces.row[face]], extrinsic_cov())
-
-        for j in sorted(set(landmarks)):
-            lm = self.landmarks[j]
-            if lm.face is None or lm.merged_into is not None:
-                continue
-            plane_B = plane_to_frame(self.landmarks.planes_S[j], T_S_B)  # (its estimate was just refreshed)
-            reason = revision_reason(plane_B, self.faces, lm.face, self.cfg.bim_association,
-                                     lambda: sigma(lm.id, lm.face))
-            if reason is not None:
-                self._unmatch(lm, reason)
-                changed = True
-        return changed
-
-    def _unmatch(self, lm: Landmark, reason: str) -> None:
-        self.graph.remove_bim(lm.id)
-        unmatch(lm, reason, self.listener)
-
-    def _associate(self, observed: list[int], T_S_B: gtsam.Pose3) -> bool:
-        if self.oracle is not None:
-            return False
-        # a frozen landmark takes no plane-to-BIM factor: its later observations do not reach it
-        todo = [j for j in sorted(set(observed)) if self.landmarks[j].face is None and self.landmarks[j].frozen is None
-                and self.bim.eligible(self.landmarks[j].area, len(self.landmarks[j].observations),
-                                      self.landmarks[j].bim_attempt)]
-        if not todo:
-            return False
-        candidates = []
-        for j in todo:
-            self.landmarks[j].bim_attempt = len(self.landmarks[j].observations)
-            if (c := candidate(self.landmarks[j], T_S_B, self.graph.joint, self.bim)) is not None:
-                candidates.append(c)
-        changed = False
-        for m in self.bim.match(candidates):
-            if (m.landmark, m.face) not in self.apart and not self._shadowed(m, T_S_B):
-                changed |= self._claim(m, T_S_B)
-        return changed
-
-    def _shadowed(self, m: FaceMatch, T_S_B: gtsam.Pose3) -> bool:
-        """Whether a landmark behind the matched one, by more than `shadow_gap_m` but within
-        what the extrinsic's uncertainty at the face allows (`shadow_sigmas`;
-        `matches.behind`), unmatched or matched to the same face, scores for that face too and
-        is not one plane with it (`offline.merge_gate`): then the match waits, until the
-        extrinsic tells the two apart or the one behind takes the face. A partition or a
-        cabinet stands before the wall it parallels; while the extrinsic is uncertain by more
-        than their gap, both pass the face's gate (site 13: a partition 24 cm before a wall,
-        seen three times before the wall was, took its face under the initial alignment's 20
-        cm; online the extrinsic ended 24 cm off, offline 0.3). Once the extrinsic is sure,
-        the gate alone decides: a plane seen behind a wall through its door is no wall."""
-        lm, cfg = self.landmarks[m.landmark], self.cfg.bim_association
-        gaps = behind(lm, self.landmarks, self.bim.cos_max, cfg.shadow_gap_m)
-        if not gaps:
-            return False  # (before the extrinsic's marginal, which costs an iSAM2 query)
-        row = self.faces.row[m.face]
-        sigma = offset_sigma(self.landmarks.planes_S[lm.id], T_S_B.matrix(), self.faces.centres[row],
-                             self.extrinsic_covariance(T_S_B))
-        group = int(self.faces.group[row])
-        for k, gap in gaps.items():
-            other = self.landmarks[k]
-            if gap > cfg.shadow_sigmas * sigma or other.face not in (None, m.face) or other.frozen is not None:
-                continue
-            c = candidate(other, T_S_B, self.graph.joint, self.bim)
-            if (c is not None and group in self.bim.scores(c)
-                    and one_plane_d2(other, lm, self.graph.joint) > self.cfg.offline.merge_gate):
-                return True
-        return False
-
-    def _claim(self, m: FaceMatch, T_S_B: gtsam.Pose3) -> bool:
-        """Match landmark and face. If the face has a landmark that is one plane with this one
-        by the SLAM association's gate (a wall seen in parts, or again after the drift grew),
-        this one merges into it: a plane-to-BIM factor per landmark would count the face's
-        as-built tolerance once per landmark. A pair that passes only offline merging's wider
-        gate (young landmarks: a board on the wall passes it at three observations) stays two
-        matches. Of a pair that is not one plane even by that (a cabinet's front before the wall
-        it stands at), the one farther from the face goes without and stays apart from it.
-        Whether a match changed."""
-        lm = self.landmarks[m.landmark]
-        for rival in [other for other in self.landmarks.items if other.face == m.face and other.id != lm.id]:
-            d2 = one_plane_d2(rival, lm, self.graph.joint)
-            if self.merge and d2 <= self.slam.gate:
-                self._merge(rival, lm)
-                return True
-            if d2 <= self.cfg.offline.merge_gate:
-                continue
-            worse = max((rival, lm), key=lambda x: face_misfit(x, m.face, self.faces, T_S_B, self.cfg.bim_association))
-            self.apart.add((worse.id, m.face))
-            if worse is lm:
-                return False
-            self._unmatch(rival, "not one plane with another landmark of its face")
-        self._set_face(m.landmark, m.face, m.score)
-        return True
-
-    def _merge(self, keep: Landmark, gone: Landmark) -> None:
-        """`gone` is `keep`'s plane (one face, one plane): its observations move to `keep`."""
-        for k, i in gone.observations:
-            obs = self._observations[k, i]
-            self.graph.add_observation(keep.id, self.build.observation(k, keep.anchor, keep.id, obs.plane_C, obs.cov))
-        self.graph.retire(gone.id, self.build.anchor_observation(gone.id, gone.plane_A, gone.cov_A))
-        self.landmarks.merge(keep, gone, self.cfg.slam_association.extent_max_points)
-        self._merged.append(keep.id)
 
 
 def run_online(keyframes, plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,

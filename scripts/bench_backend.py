@@ -16,9 +16,14 @@ work per keyframe grow.
 
 from __future__ import annotations
 
+import os
+
+# one BLAS thread, as `bimgraph` runs (bimgraph/cli.py: on a busy machine OpenBLAS's threads spin
+# against each other); set before numpy loads, the environment overrides
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 import argparse
 import itertools
-import os
 import sys
 import tempfile
 import time

@@ -14,6 +14,12 @@ differences between settings, so compare settings over many seeds.
 
 from __future__ import annotations
 
+import os
+
+# one BLAS thread, as `bimgraph` runs (bimgraph/cli.py: on a busy machine OpenBLAS's threads spin
+# against each other); set before numpy loads, the environment overrides
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 import argparse
 import math
 import statistics

@@ -9,9 +9,9 @@ S instead, 3 dimensions a landmark: the synthetic world's largest judgement, 56 
 from 510 dimensions to 174 (one elimination 13.6 -> 1.2 ms). The plane in S is
 `plane_S = plane_A.transform(T_S_A^-1)`; its tangent is, to first order, a linear function of
 the anchor's and the anchored plane's, `M`, so the Gaussian marginal on (E, anchors, planes)
-maps exactly to one on (E, planes in S): covariance `M Sigma M^T`, mean `M mu`. (As hard
-constraints in gtsam's QR, the same map took 7.3 s at 2000 synthetic keyframes, 80 landmarks;
-in numpy, milliseconds.)
+maps exactly to one on (E, planes in S): covariance `M Sigma M^T`, mean `M mu`. (Eliminated
+as hard constraints by gtsam's QR, the same map took 7.3 s offline at 2000 synthetic
+keyframes, 80 landmarks, though some 10 ms online; in numpy 30-40 ms either way.)
 
 There the plane-to-BIM factors are the same C++ factors with the frame S as the anchor: a pose
 variable `S_FRAME` pinned at the identity (gtsam's `OrientedPlane3Factor` takes a plane and a
@@ -108,7 +108,7 @@ def reduced(rest: gtsam.NonlinearFactorGraph, values: gtsam.Values, landmarks: l
     # conditionals it came in, each solve re-assembled it (2000 synthetic keyframes: the
     # robust alignment's solves 3.9 -> 3.1 s, the same estimate)
     graph = gtsam.NonlinearFactorGraph()
-    graph.add(gtsam.LinearContainerFactor(_hessian(keys, information, mean), point))
+    graph.add(gtsam.LinearContainerFactor(_gaussian(keys, information, mean), point))
     graph.add(gtsam.PriorFactorPose3(S_FRAME, gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, _PIN_SIGMA)))
     point.insert(S_FRAME, gtsam.Pose3())
     return Reduced(graph, point, {lm.id: dataclasses.replace(lm, anchor=None) for lm in landmarks}, T_S_A)
@@ -124,22 +124,14 @@ def _columns(keys) -> dict[int, slice]:
     return columns
 
 
-def _hessian(keys: list[int], information: np.ndarray, mean: np.ndarray) -> gtsam.HessianFactor:
-    """The Hessian factor `0.5 (x - mean)^T information (x - mean)` over `keys` (the extrinsic,
-    then planes in S): zero at its minimum, as the marginal QR leaves (the solvers' relative
+def _gaussian(keys: list[int], information: np.ndarray, mean: np.ndarray) -> gtsam.HessianFactor:
+    """The factor `0.5 (x - mean)^T information (x - mean)` over `keys` (the extrinsic, then
+    planes in S): zero at its minimum, as gtsam's marginal leaves it (the solvers' relative
     error tolerance reads the error's level: with the constant left out, the judgement's
-    solves stopped elsewhere, and site 3 online ended 4.7 cm off instead of 0.4). gtsam's
-    Python has no constructor for more than three keys: the sum of one factor a block of the
-    upper triangle."""
-    linear = information @ mean
-    starts = [0] + [6 + 3 * i for i in range(len(keys))]
-    block = [slice(a, b) for a, b in zip(starts, starts[1:])]
-    parts = gtsam.GaussianFactorGraph()
-    for i, key in enumerate(keys):
-        constant = 0.0 if i else float(mean @ linear)
-        parts.push_back(gtsam.HessianFactor(key, information[block[i], block[i]], linear[block[i]], constant))
-        for j in range(i + 1, len(keys)):
-            n_i, n_j = block[i].stop - block[i].start, block[j].stop - block[j].start
-            parts.push_back(gtsam.HessianFactor(key, keys[j], np.zeros((n_i, n_i)), information[block[i], block[j]],
-                                                np.zeros(n_i), np.zeros((n_j, n_j)), np.zeros(n_j), 0.0))
-    return gtsam.HessianFactor(parts)
+    solves stopped elsewhere, and site 3 online ended 4.7 cm off instead of 0.4). Made as
+    `|R (x - mean)|^2` with `R` the information's Cholesky factor: gtsam's Python takes
+    Jacobian factors of more than three keys only as a conditional on none."""
+    R = scipy.linalg.cholesky(information)
+    starts = np.cumsum([0, 6] + [3] * (len(keys) - 1))
+    terms = [(key, R[:, a:b]) for key, a, b in zip(keys, starts, starts[1:])]
+    return gtsam.HessianFactor(gtsam.GaussianConditional(terms, len(keys), R @ mean, gtsam.noiseModel.Unit.Create(len(R))))

@@ -317,6 +317,56 @@ def test_offline_judges_each_wall_against_the_others(monkeypatch):
     assert errors[True] < 0.9 * errors[False]
 
 
+@pytest.mark.parametrize("built_off_m", [0.0, 0.12])
+def test_a_wall_the_rest_barely_checks_is_tested_left_out(built_off_m):
+    """The judged graph by hand: the extrinsic at the identity, seven walls whose planes in S
+    the rest of the graph knows to 2 mm, and r10E's to 2 cm only (a wall seen a few times
+    from poses that little else holds), built `built_off_m` into the room. Kept, its factor
+    pulls its plane onto the face: its redundancy is some 0.05^2 / 2^2, and the closed-form
+    studentized test, which divides by it, does not apply (`tolerance.studentized` None).
+    Left out, the rest puts it 12 cm off at 2 cm: its offset fails (6 sigma) and only its
+    direction stays; built as planned, every wall passes."""
+    from bimgraph.backend import tolerance
+    from bimgraph.backend.associate_bim import FaceIndex
+    from bimgraph.backend.graph import S_FRAME, FactorBuilder, plane_cov
+    from bimgraph.backend.landmarks import KEPT, Landmark, LandmarkTable
+    from bimgraph.backend.reduced import Reduced
+    from bimgraph.backend.robust_alignment import RobustAlignment, _judged_keys
+    from factors import plane_prior_factor
+
+    cfg = BackendConfig()
+    plan = make_scene(20, rooms=(2, 1), seed=0).plane_map
+    faces = FaceIndex(plan, cfg.bim_association)
+    rest, point, landmarks = gtsam.NonlinearFactorGraph(), gtsam.Values(), {}
+    for pose, sigma in ((E, 0.2), (S_FRAME, 1e-8)):
+        rest.add(gtsam.PriorFactorPose3(pose, gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, sigma)))
+        point.insert(pose, gtsam.Pose3())
+    for j, face in enumerate(f for f in plan.faces if f.kind == "wall"):
+        plane = np.r_[face.normal, face.offset - (built_off_m if face.id == "r10E" else 0.0)]
+        sigma_m = 0.02 if face.id == "r10E" else 0.002
+        rest.add(plane_prior_factor(plane, gtsam.noiseModel.Gaussian.Covariance(plane_cov(np.radians(0.05), sigma_m)), PLANE_S(j)))
+        point.insert(PLANE_S(j), gtsam.OrientedPlane3(plane))
+        landmarks[j] = Landmark(j, None, plane, np.eye(3), np.eye(4), face=face.id)
+    judged = Reduced(rest, point, landmarks, {j: gtsam.Pose3() for j in landmarks})
+    alignment = RobustAlignment(faces, FactorBuilder(cfg), LandmarkTable(), cfg.offline)
+    alignment.tolerance = (np.radians(0.05), 0.002)
+    alignment.verdicts = {(j, lm.face): KEPT for j, lm in landmarks.items()}
+    solve = BatchSolver(20, 1e-9)
+    graph = judged.graph(alignment.factors(alignment.verdicts))
+    values = solve(graph, point)
+
+    moved = next(j for j, lm in landmarks.items() if lm.face == "r10E")
+    A, e = alignment._deviation_residual(landmarks[moved], "r10E", values)
+    keys = _judged_keys(landmarks[moved])
+    assert tolerance.studentized(A, e, JointMarginals(graph, values, keys)(keys)) is None
+    worst = alignment._worst_studentized(graph, values, judged, solve)
+    if built_off_m:
+        assert worst == ((moved, "r10E"), "direction")
+        assert np.sqrt(alignment._left_out_offset((moved, "r10E"), judged, values, solve)) == pytest.approx(6.0, abs=0.3)
+    else:
+        assert worst is None
+
+
 @pytest.mark.parametrize("seed", [2, 4])
 def test_offline_judgement_finds_the_sound_walls_among_walls_moved_alike(tmp_path, seed):
     """Issue 8's scenario at its 30 % of clutter. Seed 2: walls built 6-10 cm off the same way

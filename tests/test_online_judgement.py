@@ -38,25 +38,30 @@ def test_online_judgement_overrules_a_moved_wall_seen_first(judge_every):
         assert {"r00W", "r10W", "r10E"} <= set(deviating)
 
 
-@pytest.mark.parametrize("scale", [1.0, 0.2])
-def test_the_judgement_sees_the_walk_stiffer_than_the_noise_given(scale):
+@pytest.mark.parametrize("scale, studentized", [(1.0, None), (1.0, 0.9999), (0.2, 0.9999)])
+def test_the_judgement_sees_the_walk_stiffer_than_the_noise_given(scale, studentized):
     """The front-end gives no covariance, so the odometry takes the configured default, ten
     times the walk's true noise per step (0.1 deg and 5 mm against 0.01 deg and 1 mm). The walk
     starts facing a wall built 6 cm off. Judged under the noise as given
-    (`isam2.judge_odometry_scale` 1), the walk bends around that wall until it fits, the wall is
-    kept and the extrinsic ends 5.8 cm off; judged at the default 0.2, the wall goes out and the
-    extrinsic ends within 1 cm."""
+    (`isam2.judge_odometry_scale` 1) without the studentized tests, the walk bends around that
+    wall until it fits, the wall is kept and the extrinsic ends 5.8 cm off. The studentized
+    test (`isam2.judge_studentized_probability`), which measures the wall against the rest
+    with its own pull taken out, finds it off plan even so (0.8 cm); at the default 0.2 GNC
+    already puts it out (0.4 cm)."""
     scene = make_scene(160, rooms=(2, 1), seed=1, drift_rot_deg=0.01, drift_trans_m=0.001)
     plan = moved_plan(scene.plane_map, {"r00E": 0.06})
     cfg = BackendConfig()
     cfg.isam2.judge_every = 10
     cfg.isam2.judge_odometry_scale = scale
+    cfg.isam2.judge_studentized_probability = studentized
     backend = Backend(plan, cfg, scene.initial)
     results = [backend.process(kf.model_copy(update={"cov": None})) for kf in scene.keyframes]
     verdicts = {lm.face: lm.alignment for lm in backend.landmarks.items if lm.face == "r00E"}
     error_cm = extrinsic_error(results[-1].T_B_S, scene.T_B_S)[1]
-    if scale == 1.0:
+    if studentized is None:
         assert verdicts == {"r00E": "kept"} and error_cm > 4.0
+    elif scale == 1.0:
+        assert verdicts == {"r00E": "direction"} and error_cm < 1.0
     else:
         assert verdicts == {"r00E": "out"} and error_cm < 1.0
         # judged as offline, the tolerance tightened to what the kept walls show (0.05 deg, 5 mm)

@@ -1,7 +1,7 @@
 """The robust alignment online (`isam2.judge_every`): every so many keyframes, if a wall matched
 since the last time misfits, every plane-to-BIM factor of the graph so far is judged as the
-offline rounds judge them (`bimgraph.backend.robust_alignment`, without the studentized tests,
-each of which takes a marginal of the whole graph). No I/O.
+offline rounds judge them (`bimgraph.backend.robust_alignment`; its studentized tests at the
+stricter `isam2.judge_studentized_probability`). No I/O.
 
 With the robust kernel alone, a wall built off plan that the walk sees first holds the
 alignment, and each sound wall seen after it is outvoted alone. The judgement decides on a
@@ -27,7 +27,9 @@ from bimgraph.sequence.format import Keyframe
 
 class OnlineJudgement:
     def __init__(self, faces: FaceIndex, build: FactorBuilder, landmarks: LandmarkTable, cfg: BackendConfig):
-        self.alignment = RobustAlignment(faces, build, landmarks, cfg.offline.model_copy(update={"studentized": False}))
+        p = cfg.isam2.judge_studentized_probability
+        self.alignment = RobustAlignment(faces, build, landmarks, cfg.offline.model_copy(
+            update={"studentized": p is not None, "studentized_probability": p or cfg.offline.studentized_probability}))
         self.odometry_scale = cfg.isam2.judge_odometry_scale
         self._stiff: OdometryModel | None = None  # the scaled odometry, while the drift it was made with stands
 

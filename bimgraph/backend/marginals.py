@@ -20,6 +20,14 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 
 
+def column_blocks(keys, values: gtsam.Values) -> dict[int, slice]:
+    """Each key's columns in a dense matrix over `keys`, in the order given, each as wide as its
+    variable's tangent in `values`."""
+    zero = values.zeroVectors()
+    starts = np.concatenate([[0], np.cumsum([zero.at(key).size for key in keys])])
+    return {key: slice(int(a), int(b)) for key, a, b in zip(keys, starts, starts[1:])}
+
+
 class JointMarginals:
     """`joint(keys)`: the joint marginal covariance of `keys`, blocks in the order given, for
     any keys among those this was made for; the marginalisation runs at the first request."""
@@ -34,11 +42,7 @@ class JointMarginals:
         # the dense information's rows are the keys in ascending order, each its tangent's width
         information, _ = marginal.hessian()
         covariance = cho_solve(cho_factor(information), np.eye(len(information)))
-        zero = self._values.zeroVectors()
-        widths = [zero.at(key).size for key in self._keys]
-        starts = np.concatenate([[0], np.cumsum(widths)])
-        blocks = {key: slice(int(a), int(b)) for key, a, b in zip(self._keys, starts, starts[1:])}
-        return 0.5 * (covariance + covariance.T), blocks
+        return 0.5 * (covariance + covariance.T), column_blocks(self._keys, self._values)
 
     def __call__(self, keys: list[int]) -> np.ndarray:
         cov, blocks = self._covariance

@@ -31,6 +31,7 @@ import scipy.linalg
 
 from bimgraph.backend.graph import E, L, PLANE_S, S_FRAME, X, bim_keys
 from bimgraph.backend.landmarks import Landmark
+from bimgraph.backend.marginals import column_blocks
 from factors import predict_local_plane
 
 _PIN_SIGMA = 1e-8
@@ -84,7 +85,7 @@ def reduced(rest: gtsam.NonlinearFactorGraph, values: gtsam.Values, landmarks: l
     factor but the plane-to-BIM ones) as its Gaussian marginal at `values` on the extrinsic
     and the landmarks in S (a `LinearContainerFactor`)."""
     anchored = gtsam.HessianFactor(rest.linearize(values).marginal(gtsam.KeyVector(bim_keys(landmarks))))
-    columns = _columns(anchored.keys())
+    columns = column_blocks(list(anchored.keys()), values)
     keys = [E] + [PLANE_S(lm.id) for lm in landmarks]
     information_x = anchored.information()
     M = np.zeros((3 * len(keys) + 3, len(information_x)))  # (E, anchors, planes) -> (E, planes in S)
@@ -108,30 +109,19 @@ def reduced(rest: gtsam.NonlinearFactorGraph, values: gtsam.Values, landmarks: l
     # conditionals it came in, each solve re-assembled it (2000 synthetic keyframes: the
     # robust alignment's solves 3.9 -> 3.1 s, the same estimate)
     graph = gtsam.NonlinearFactorGraph()
-    graph.add(gtsam.LinearContainerFactor(_gaussian(keys, information, mean), point))
+    graph.add(gtsam.LinearContainerFactor(_gaussian(column_blocks(keys, point), information, mean), point))
     graph.add(gtsam.PriorFactorPose3(S_FRAME, gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, _PIN_SIGMA)))
     point.insert(S_FRAME, gtsam.Pose3())
     return Reduced(graph, point, {lm.id: dataclasses.replace(lm, anchor=None) for lm in landmarks}, T_S_A)
 
 
-def _columns(keys) -> dict[int, slice]:
-    """Each key's columns in a Hessian factor over `keys` (the extrinsic, anchors and
-    landmarks), in their order."""
-    columns, start = {}, 0
-    for key in keys:
-        dim = 3 if gtsam.Symbol(key).chr() == ord("l") else 6
-        columns[key], start = slice(start, start + dim), start + dim
-    return columns
-
-
-def _gaussian(keys: list[int], information: np.ndarray, mean: np.ndarray) -> gtsam.HessianFactor:
-    """The factor `0.5 (x - mean)^T information (x - mean)` over `keys` (the extrinsic, then
-    planes in S): zero at its minimum, as gtsam's marginal leaves it (the solvers' relative
+def _gaussian(columns: dict[int, slice], information: np.ndarray, mean: np.ndarray) -> gtsam.HessianFactor:
+    """The factor `0.5 (x - mean)^T information (x - mean)` over the keys of `columns` (each
+    key's columns in `information`, in order): zero at its minimum, as gtsam's marginal leaves it (the solvers' relative
     error tolerance reads the error's level: with the constant left out, the judgement's
     solves stopped elsewhere, and site 3 online ended 4.7 cm off instead of 0.4). Made as
     `|R (x - mean)|^2` with `R` the information's Cholesky factor: gtsam's Python takes
     Jacobian factors of more than three keys only as a conditional on none."""
     R = scipy.linalg.cholesky(information)
-    starts = np.cumsum([0, 6] + [3] * (len(keys) - 1))
-    terms = [(key, R[:, a:b]) for key, a, b in zip(keys, starts, starts[1:])]
-    return gtsam.HessianFactor(gtsam.GaussianConditional(terms, len(keys), R @ mean, gtsam.noiseModel.Unit.Create(len(R))))
+    terms = [(key, R[:, block]) for key, block in columns.items()]
+    return gtsam.HessianFactor(gtsam.GaussianConditional(terms, len(terms), R @ mean, gtsam.noiseModel.Unit.Create(len(R))))

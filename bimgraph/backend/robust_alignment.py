@@ -259,7 +259,8 @@ class RobustAlignment:
         four times, fitted its face to 0.2 cm and was kept all walk; left out, the rest put it
         11.3 cm off, sigma 2.5 cm)."""
         j, face = pair
-        rest = reduced.graph(lambda lm: None if (lm.id, lm.face) == pair else self.factor(lm, 1.0, self.verdicts[lm.id, lm.face]))
+        kept = self.factors(self.verdicts)
+        rest = reduced.graph(lambda lm: None if (lm.id, lm.face) == pair else kept(lm))
         solved = solve(rest, values)
         lm = reduced.landmarks[j]
         A, e = self._deviation_residual(lm, face, solved)

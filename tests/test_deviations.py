@@ -161,7 +161,9 @@ def test_a_face_only_the_plan_constrains_is_not_measurable():
     (Deviation(-0.06, 0.001, 0.1, 0.05), 10, "deviating"),
     (Deviation(0.005, 0.001, 2.0, 0.1), 10, "deviating"),
     (Deviation(0.01, 0.002, 0.1, 0.05), 10, "within_tolerance"),
-    (Deviation(-0.019, 0.004, 0.3, 0.1), 10, "within_tolerance"),
+    (Deviation(-0.011, 0.004, 0.2, 0.1), 10, "within_tolerance"),
+    (Deviation(-0.019, 0.004, 0.2, 0.1), 10, "not_enough_evidence"),  # inside, but not by 2 sigma (ISO 14253-1)
+    (Deviation(0.005, 0.001, 0.35, 0.1), 10, "not_enough_evidence"),  # the tilt likewise
     (Deviation(0.06, 0.001, 0.1, 0.05), 2, "not_enough_evidence"),
     (Deviation(0.06, 0.03, 0.1, 0.05), 10, "not_enough_evidence"),
     (Deviation(0.10, 0.015, 0.1, 0.05), 10, "deviating"),  # uncertain, but far beyond tolerance
@@ -225,7 +227,24 @@ def test_few_keyframes_or_large_sigma_is_not_enough_evidence():
     vague = assess(plane_map, [observed(0, as_built_plane(f, 0.01), face_id=f.id, sigma=0.05)], T_S_B, CFG)
     assert few.faces[0].status == "not_enough_evidence"
     assert vague.faces[0].status == "not_enough_evidence"
-    assert vague.faces[0].deviation.offset_sigma_m > CFG.max_offset_sigma_m
+    dev = vague.faces[0].deviation
+    assert abs(dev.offset_m) + CFG.conformance_k * dev.offset_sigma_m > CFG.tolerance_m
+
+
+def test_within_tolerance_only_inside_the_conformance_zone():
+    """ISO 14253-1's decision rule: a face is within tolerance only where its offset lies
+    inside the tolerance by k sigma. Measured 1.5 cm off at a sigma of 4 mm, it may well be
+    built beyond 2 cm; 0.5 cm off, it is not."""
+    f = face("south")
+
+    def report(offset_m, cfg=CFG):
+        return assess(room(), [observed(0, as_built_plane(f, offset_m), face_id=f.id)], T_S_B, cfg).faces[0]
+
+    edge = report(0.015)
+    assert edge.deviation.offset_sigma_m == pytest.approx(0.0042, abs=3e-4)
+    assert edge.status == "not_enough_evidence"
+    assert report(0.005).status == "within_tolerance"
+    assert report(0.015, CFG.model_copy(update={"conformance_k": 0.0})).status == "within_tolerance"
 
 
 def test_faces_seen_rarely_are_not_called_missing():

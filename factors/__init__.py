@@ -6,6 +6,7 @@ optimisers); the Python versions here are the readable reference the tests hold 
 """
 
 from factors.plane import (
+    deviation_cov_in_residual,
     error_jacobian_wrt_plane,
     face_tolerance_coordinates,
     face_tolerance_cov,
@@ -21,6 +22,7 @@ from factors.plane import (
 )
 
 __all__ = [
+    "deviation_cov_in_residual",
     "error_jacobian_wrt_plane",
     "face_tolerance_coordinates",
     "face_tolerance_cov",

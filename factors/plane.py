@@ -130,7 +130,13 @@ def face_tolerance_cov(basis: np.ndarray, centre: np.ndarray | None, sigma_norma
             h /= np.sqrt(inclined)
             turn = sigma_normal_rad**2 * inclined + sigma_plumb_rad**2 * (1.0 - inclined)
             cov_tilt += (turn - sigma_plumb_rad**2) * np.outer(basis.T @ h, basis.T @ h)
-    M_inv = np.linalg.inv(face_tolerance_coordinates(basis, centre))
+    return deviation_cov_in_residual(np.linalg.inv(face_tolerance_coordinates(basis, centre)), sigma_offset_m, cov_tilt)
+
+
+def deviation_cov_in_residual(M_inv: np.ndarray, sigma_offset_m: float, cov_tilt: np.ndarray) -> np.ndarray:
+    """Covariance of the plane-to-BIM residual for a deviation of offset sigma `sigma_offset_m`
+    and tilt covariance `cov_tilt` (2x2, rad^2), independent, through `M_inv`, the inverse of
+    `face_tolerance_coordinates` (which a caller making many for one face can keep)."""
     cov = np.zeros((3, 3))
     cov[0, 0] = sigma_offset_m**2
     cov[1:, 1:] = cov_tilt

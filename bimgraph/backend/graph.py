@@ -22,7 +22,7 @@ import numpy as np
 from bimgraph.config import BackendConfig
 from bimgraph.errors import SingularError
 from bimgraph.geometry import normalise_plane
-from factors import face_tolerance_cov, local_plane_factor, plane_prior_at, plane_prior_factor, plane_to_bim_factor
+from factors import deviation_cov_in_residual, face_tolerance_coordinates, local_plane_factor, plane_prior_at, plane_prior_factor, plane_to_bim_factor
 
 X = gtsam.symbol_shorthand.X
 L = gtsam.symbol_shorthand.L
@@ -139,6 +139,9 @@ class FactorBuilder:
         # makes thousands of plane-to-BIM factors a judgement, of a few dozen faces (on the
         # synthetic world's largest, 0.42 of its 1.6 s went to making these again)
         self._face_covs: dict[tuple, np.ndarray] = {}
+        # each face's map from deviation to residual, by (plane, centre): the tolerance the
+        # judgement tightens changes from one of its solves to the next, the face does not
+        self._face_maps: dict[tuple, np.ndarray] = {}
 
     def first_pose(self, k: int, T_S_C: np.ndarray) -> gtsam.NonlinearFactor:
         return gtsam.PriorFactorPose3(X(k), pose3(T_S_C), self.first_pose_noise)
@@ -197,9 +200,12 @@ class FactorBuilder:
         n = self.cfg.noise
         plane_B = np.asarray(plane_B, dtype=float)
         tolerance = tolerance or self.bim_tolerance()
-        key = (plane_B.tobytes(), None if centre_B is None else np.asarray(centre_B, dtype=float).tobytes(), tolerance)
-        if (cov := self._face_covs.get(key)) is None:
-            cov = self._face_covs[key] = face_tolerance_cov(gtsam.Unit3(plane_B[:3]).basis(), centre_B, *tolerance)
+        face = (plane_B.tobytes(), None if centre_B is None else np.asarray(centre_B, dtype=float).tobytes())
+        if (cov := self._face_covs.get((face, tolerance))) is None:
+            if (M_inv := self._face_maps.get(face)) is None:
+                M_inv = self._face_maps[face] = np.linalg.inv(
+                    face_tolerance_coordinates(gtsam.Unit3(plane_B[:3]).basis(), centre_B))
+            cov = self._face_covs[face, tolerance] = deviation_cov_in_residual(M_inv, tolerance[1], tolerance[0]**2 * np.eye(2))
         if weight is None:
             noise = _robust(n.bim_kernel, n.bim_kernel_width, gtsam.noiseModel.Gaussian.Covariance(cov))
         else:

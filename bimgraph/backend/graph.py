@@ -22,7 +22,8 @@ import numpy as np
 from bimgraph.config import BackendConfig
 from bimgraph.errors import SingularError
 from bimgraph.geometry import normalise_plane
-from factors import deviation_cov_in_residual, face_tolerance_coordinates, local_plane_factor, plane_prior_at, plane_prior_factor, plane_to_bim_factor
+from factors import (deviation_cov_in_residual, face_tolerance_coordinates, local_plane_factor, plane_prior_at,
+                     plane_prior_factor, plane_to_bim_factor)
 
 X = gtsam.symbol_shorthand.X
 L = gtsam.symbol_shorthand.L

@@ -9,7 +9,7 @@ above the chi-square 95 % quantile, 7.8, one time in twenty where it is). Over s
 sequences, a summary per mode: the spread of one walk's error is about the size of the
 differences between settings, so compare settings over many seeds.
 
-    python scripts/eval_backend.py SEQDIR [SEQDIR ...] [--config FILE] [--mode offline ...]
+    python scripts/eval_backend.py SEQDIR [SEQDIR ...] [--config FILE] [--mode offline ...] [--jobs 2]
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse
+import functools
 import math
 import statistics
 import time
@@ -31,6 +32,7 @@ from scipy.stats import chi2
 from bimgraph.backend import run_offline, run_online
 from bimgraph.backend.pipeline import initial_alignment, load_model, model_path, oracle_of
 from bimgraph.config import load_config
+from bimgraph.evaluation.jobs import run_all
 from bimgraph.evaluation.metrics import association_scores, ate, extrinsic_error, extrinsic_nees
 from bimgraph.sequence.format import load_sequence
 from bimgraph.sequence.groundtruth import load_groundtruth
@@ -90,14 +92,17 @@ def main():
     parser.add_argument("--config", type=Path, default=None)
     parser.add_argument("--mode", action="append", choices=MODES, dest="modes",
                         help="run only this mode (repeat for several; default: all three)")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="sequences evaluated at once, each in a process of its own (the seconds column then "
+                             "counts a machine they share)")
     args = parser.parse_args()
     args.modes = args.modes or list(MODES)
     cfg = load_config(args.config)
     print("| sequence | mode | precision | recall | T_B_S error deg | cm | NEES | ATE cm | front-end ATE cm | s | wall tolerance deg, mm | unobservable |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     rows = []
-    for root in args.sequences:
-        for r in evaluate(root, cfg, args.modes):
+    for sequence_rows in run_all(functools.partial(evaluate, cfg=cfg, modes=args.modes), args.sequences, args.jobs):
+        for r in sequence_rows:
             rows.append(r)
             print(f"| {r['sequence']} | {r['mode']} | {r['precision']:.4f} | {r['recall']:.4f} | {r['rot_deg']:.3f} | {r['trans_cm']:.2f} | {r['nees']:.1f} "
                   f"| {r['ate_cm']:.2f} | {r['frontend_ate_cm']:.1f} | {r['seconds']:.1f} | {tolerance(r['tolerance'])} | {' '.join(r['unobservable'])} |", flush=True)

@@ -24,6 +24,7 @@ keep whole, `not_kept_true` those of them truly off plan beyond the tolerance.
 from __future__ import annotations
 
 import argparse
+import functools
 import tempfile
 import time
 from collections import Counter
@@ -38,6 +39,7 @@ from bimgraph.backend.synthetic import make_scene
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig, Config, DeviationConfig, load_config
 from bimgraph.deviations.outputs import write_deviation_outputs
+from bimgraph.evaluation.jobs import run_all
 from bimgraph.evaluation.metrics import ate, extrinsic_error
 from bimgraph.sequence.format import Camera, load_sequence
 from bimgraph.sequence.groundtruth import as_planned, load_groundtruth
@@ -231,15 +233,23 @@ def main():
                         help="override backend.offline.gnc")
     parser.add_argument("--oracle", action="store_true", help="give the backend the true associations (simulator only)")
     parser.add_argument("--config", "-c", type=Path, default=None)
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="worlds evaluated at once, each in a process of its own (the timing columns then count a "
+                             "machine they share)")
     args = parser.parse_args()
     cfg = load_config(args.config)
     if args.gnc is not None:
         cfg.backend.offline.gnc = args.gnc
     if args.synthetic:
-        print_table(args.seeds, [run_synthetic(seed, args, cfg) for seed in args.seeds])
+        print_table(args.seeds, list(run_all(functools.partial(run_synthetic, args=args, cfg=cfg), args.seeds, args.jobs)))
     if args.sequences:
         cleans = args.clean or [None] * len(args.sequences)
-        print_table([p.name for p in args.sequences], [run_simulated(p, c, args, cfg) for p, c in zip(args.sequences, cleans)])
+        print_table([p.name for p in args.sequences],
+                    list(run_all(functools.partial(_run_simulated, args=args, cfg=cfg), zip(args.sequences, cleans), args.jobs)))
+
+
+def _run_simulated(pair: tuple[Path, Path | None], args, cfg) -> dict:
+    return run_simulated(*pair, args, cfg)
 
 
 if __name__ == "__main__":

@@ -17,11 +17,11 @@ import argparse
 import json
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
+from bimgraph.evaluation.jobs import run_all
 from bimgraph.evaluation.report import COLUMNS
 
 PAPER = {"wall_angle_reduction_pct": 52.24, "wall_distance_reduction_pct": 60.8}
@@ -144,11 +144,10 @@ def main() -> int:
                  for s in ("office", "site")]
     start = time.perf_counter()
     runs = []
-    with ProcessPoolExecutor(max_workers=args.workers) as pool:
-        for result in pool.map(one_run, jobs):
-            runs.append(result)
-            print(f"done {result['scenario']} {result['sensor']} seed {result['seed']} "
-                  f"({', '.join(f'{k} {v:.0f}' for k, v in result['timings'].items())})", file=sys.stderr)
+    for result in run_all(one_run, jobs, args.workers):
+        runs.append(result)
+        print(f"done {result['scenario']} {result['sensor']} seed {result['seed']} "
+              f"({', '.join(f'{k} {v:.0f}' for k, v in result['timings'].items())})", file=sys.stderr)
     elapsed = time.perf_counter() - start
     # (the runs first: their minutes of simulation are not lost to a failure in the summary)
     (args.output / "results.json").write_text(json.dumps(runs, indent=1))

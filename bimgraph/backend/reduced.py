@@ -117,9 +117,10 @@ def reduced(rest: gtsam.NonlinearFactorGraph, values: gtsam.Values, landmarks: l
 
 def _gaussian(columns: dict[int, slice], information: np.ndarray, mean: np.ndarray) -> gtsam.HessianFactor:
     """The factor `0.5 (x - mean)^T information (x - mean)` over the keys of `columns` (each
-    key's columns in `information`, in order): zero at its minimum, as gtsam's marginal leaves it (the solvers' relative
-    error tolerance reads the error's level: with the constant left out, the judgement's
-    solves stopped elsewhere, and site 3 online ended 4.7 cm off instead of 0.4). Made as
+    key's columns in `information`, in order): zero at its minimum, as gtsam's marginal leaves
+    it (the solvers' relative error tolerance reads the error's level: with the constant left
+    out, the judgement's solves stopped elsewhere, and site 3 online ended 4.7 cm off instead
+    of 0.4). Made as
     `|R (x - mean)|^2` with `R` the information's Cholesky factor: gtsam's Python takes
     Jacobian factors of more than three keys only as a conditional on none."""
     R = scipy.linalg.cholesky(information)

@@ -207,8 +207,9 @@ def classify(dev: Deviation, n_keyframes: int, cfg: DeviationConfig) -> Status:
     reported as not enough evidence."""
     if not dev.measurable or n_keyframes < cfg.min_keyframes:
         return "not_enough_evidence"
-    if excess_sigma(dev, cfg) > cfg.k_sigma:
+    excess = excess_sigma(dev, cfg)
+    if excess > cfg.k_sigma:
         return "deviating"
-    if excess_sigma(dev, cfg) <= -cfg.conformance_k:
+    if excess <= -cfg.conformance_k:
         return "within_tolerance"
     return "not_enough_evidence"

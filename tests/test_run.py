@@ -8,8 +8,8 @@ from typer.testing import CliRunner
 
 from cli_errors import assert_one_line_error
 
-from bimgraph.backend.offline import OfflineEstimator
 from bimgraph.backend.online import Backend
+from bimgraph.backend import pipeline
 from bimgraph.backend.pipeline import initial_alignment, load_model, run as run_pipeline
 from bimgraph.backend.synthetic import make_scene
 from bimgraph.bim.planemap import save_plane_map
@@ -101,27 +101,30 @@ def test_the_step_after_the_last_keyframe_is_announced(world, tmp_path):
     assert (tmp_path / "deviations.json").exists()
 
 
-def test_a_run_stopped_while_measuring_the_walls_is_not_finished(world, tmp_path, monkeypatch):
-    """Stopped after its last keyframe, in the deviation step (Ctrl-C here), an online run has
-    every other output written and says it did not finish; it leaves no report, not even part
-    of one."""
+@pytest.mark.parametrize("mode", ["online", "offline"])
+def test_a_run_stopped_while_measuring_the_walls_is_not_finished(world, tmp_path, monkeypatch, mode):
+    """Stopped in the deviation step, after everything else (Ctrl-C while the report is being
+    written, here), a run has every other output written and says it did not finish; it leaves
+    no report, not even part of one."""
     _, root = world
 
-    def interrupted(self, keyframes, timings=None):
+    def interrupted(out_dir, *args, **kwargs):
         (tmp_path / "deviations.json").write_text("{")  # as if stopped while writing it
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(OfflineEstimator, "refine", interrupted)
-    result = run(root, "-o", tmp_path)
+    monkeypatch.setattr(pipeline, "write_deviation_outputs", interrupted)
+    result = run(root, "-o", tmp_path, "--mode", mode)
     assert result.exit_code == 130
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["finished"] is False and summary["keyframes"] == N
     assert len(read_tum(tmp_path / "trajectory_bim.tum")[0]) == N
+    json.loads((tmp_path / "extrinsic.json").read_text())
     assert not any((tmp_path / name).exists() for name in ("deviations.json", "deviations.csv", "deviations.bcf"))
     monkeypatch.undo()
-    assert run(root, "-o", tmp_path).exit_code == 0
+    assert run(root, "-o", tmp_path, "--mode", mode).exit_code == 0
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["finished"] is True and summary["timings_s"]["total_s"] > summary["timings_s"]["deviation_report_s"] > 0
+    assert (tmp_path / "deviations.json").exists()
 
 
 def test_crash_mid_run_leaves_valid_outputs(world, tmp_path, monkeypatch):
@@ -131,7 +134,7 @@ def test_crash_mid_run_leaves_valid_outputs(world, tmp_path, monkeypatch):
     interrupt_at(monkeypatch, 40)
     out = tmp_path / "out"
     result = run(root, "-o", out)
-    assert result.exit_code != 0
+    assert result.exit_code == 130
     assert len(read_tum(out / "trajectory_bim.tum")[0]) == 40
     assert len(read_tum(out / "trajectory_slam.tum")[0]) == 40
     summary = json.loads((out / "summary.json").read_text())
@@ -173,7 +176,7 @@ def test_a_run_into_an_earlier_runs_folder_leaves_nothing_of_it_standing(world, 
     assert run(root, "-o", out).exit_code == 0
     (out / "metrics.json").write_text("{}")
     interrupt_at(monkeypatch, 20)
-    assert run(root, "-o", out).exit_code != 0
+    assert run(root, "-o", out).exit_code == 130
     assert json.loads((out / "summary.json").read_text())["keyframes"] == 20
     assert not any((out / name).exists() for name in ("deviations.json", "deviations.csv", "deviations.bcf", "metrics.json"))
 

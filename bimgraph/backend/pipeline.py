@@ -15,7 +15,7 @@ from bimgraph.backend.graph import BatchSolver, singular_as_error
 from bimgraph.backend.offline import OfflineEstimator, run_offline
 from bimgraph.backend.online import Backend
 from bimgraph.backend.records import Listener, Results
-from bimgraph.backend.results import METRICS, OnlineWriter, write_results
+from bimgraph.backend.results import METRICS, OnlineWriter, write_results, write_summary
 from bimgraph.bim.planemap import PlaneMap, load_plane_map
 from bimgraph.config import Config
 from bimgraph.deviations.graph import observed_planes_isam2
@@ -168,11 +168,15 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
     if seeds:
         initial = seed_alignment(sequence.keyframes, plane_map, list(seeds), cfg, initial)
     if mode == "offline":
+        start = time.perf_counter()
         results = run_offline(sequence.keyframes, plane_map, cfg.backend, initial, listener, truth)
         clear_previous_run(out_dir)
-        write_results(out_dir, results, named)
-        write_deviation_outputs(out_dir, plane_map, results.observed_planes, results.T_B_S, results.T_B_C, meta.camera,
-                                cfg.deviations)
+        # as online: every other output first, `finished` once the report is written too
+        write_results(out_dir, results, named, finished=False)
+        report_start = time.perf_counter()
+        _write_report(out_dir, plane_map, results.observed_planes, results.T_B_S, results.T_B_C, meta.camera, cfg)
+        results.timings.update(deviation_report_s=time.perf_counter() - report_start, total_s=time.perf_counter() - start)
+        write_summary(out_dir, results, named)
         return results
 
     # the extrinsic's covariance per keyframe only for a listener (the viewer plots it); the
@@ -197,14 +201,19 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
     if stage is not None:  # (about as long as offline rounds: seconds to a minute)
         stage("measuring the walls")
     report_start = time.perf_counter()
+    planes, T_B_S, T_B_C = _online_deviations(backend, sequence.keyframes, plane_map, cfg, initial, truth, writer.T_B_C)
+    _write_report(out_dir, plane_map, planes, T_B_S, T_B_C, meta.camera, cfg)
+    writer.finish({"deviation_report_s": time.perf_counter() - report_start, "total_s": time.perf_counter() - start})
+    return None
+
+
+def _write_report(out_dir: Path, plane_map: PlaneMap, planes, T_B_S, T_B_C, camera, cfg: Config) -> None:
+    """The deviation report, whole or not at all."""
     try:
-        planes, T_B_S, T_B_C = _online_deviations(backend, sequence.keyframes, plane_map, cfg, initial, truth, writer.T_B_C)
-        write_deviation_outputs(out_dir, plane_map, planes, T_B_S, T_B_C, meta.camera, cfg.deviations)
+        write_deviation_outputs(out_dir, plane_map, planes, T_B_S, T_B_C, camera, cfg.deviations)
     except BaseException:
         _remove(out_dir, DEVIATION_FILES)  # (a report written in part is no report)
         raise
-    writer.finish({"deviation_report_s": time.perf_counter() - report_start, "total_s": time.perf_counter() - start})
-    return None
 
 
 def _online_deviations(backend: Backend, keyframes: list[Keyframe], plane_map: PlaneMap, cfg: Config, initial: Alignment,

@@ -296,8 +296,8 @@ class OnlineWriter:
         self.slam.close()
 
 
-def write_results(out_dir: Path, results: Results, inputs: dict | None = None) -> None:
-    """All outputs of a finished run at once (offline runs)."""
+def write_results(out_dir: Path, results: Results, inputs: dict | None = None, finished: bool = True) -> None:
+    """All outputs of a run at once (offline runs) but the deviation report."""
     out = Path(out_dir)
     ensure_folder(out)
     write_tum(out / TRAJECTORY_BIM, results.stamps, results.T_B_C)
@@ -305,6 +305,11 @@ def write_results(out_dir: Path, results: Results, inputs: dict | None = None) -
     write_json(out / EXTRINSIC, extrinsic_record(results.T_B_S, results.cov_T_B_S, results.unobservable, None))
     write_json(out / ASSOCIATIONS, associations_record(results.landmarks))
     write_json(out / LANDMARKS, landmarks_record(results.landmarks, results.T_B_S))
-    write_json(out / SUMMARY, summary_record(results.mode, results.timings, [], len(results.stamps), results.landmarks,
-                                             True, results.rounds, inputs, results.bim_tolerance,
-                                             results.frontend_drift, results.alignment_challenge))
+    write_summary(out, results, inputs, finished)
+
+
+def write_summary(out_dir: Path, results: Results, inputs: dict | None = None, finished: bool = True) -> None:
+    """`summary.json` of a run written by `write_results`."""
+    write_json(Path(out_dir) / SUMMARY, summary_record(
+        results.mode, results.timings, [], len(results.stamps), results.landmarks, finished, results.rounds, inputs,
+        results.bim_tolerance, results.frontend_drift, results.alignment_challenge))

@@ -54,5 +54,5 @@ def test_methods_over_keyframes():
     assert np.allclose(global_out[-1], T_B_S_TRUE, atol=1e-6)
     local_out = estimate_extrinsics("local", keyframes, matches, manual, cfg.backend, cfg.baselines)
     assert np.allclose(local_out[-1], T_B_S_TRUE, atol=1e-6)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="'best'"):
         estimate_extrinsics("best", keyframes, matches, manual, cfg.backend, cfg.baselines)

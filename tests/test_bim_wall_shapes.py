@@ -56,6 +56,7 @@ def test_internal_layer_faces_are_not_faces(tmp_path):
     plane_map, _ = import_ifc(path, BimImportConfig())
     faces = [f for f in plane_map.faces if f.wall_name == "W0"]
     assert sorted(f.offset for f in faces) == pytest.approx([-T / 2, -T / 2])  # x = -0.15 and x = 0.15
+    assert sorted(round(f.normal[0]) for f in faces) == [-1, 1]  # one face on each side, not one twice
     assert sum(f.area for f in faces) == pytest.approx(2 * (6 - T) * H)
 
 

@@ -251,6 +251,8 @@ def test_faces_seen_rarely_are_not_called_missing():
     plane_map, _ = room_scene()
     report = assess(plane_map, [], T_S_B, CFG, expected_views={"north-face": CFG.min_expected_keyframes - 1})
     assert report.faces == []
+    report = assess(plane_map, [], T_S_B, CFG, expected_views={"north-face": CFG.min_expected_keyframes})
+    assert [(f.face_id, f.status) for f in report.faces] == [("north-face", "possibly_not_built")]
 
 
 def test_expected_in_view_by_ray_casting():

@@ -198,9 +198,10 @@ def test_offline_gnc_measures_the_moved_wall_against_the_others(offline_runs, tm
     moved = next(f for f in data.faces if f.face_id == "r00E")
     assert moved.status == "deviating"
     assert abs(moved.offset_m - MOVED["r00E"]) < min(3 * moved.offset_sigma_m, 0.01)
-    for f in data.faces:
-        if f.offset_m is not None and f.face_id not in MOVED:
-            assert abs(f.offset_m) < min(4 * f.offset_sigma_m + 0.005, 0.015), f
+    sound = [f for f in data.faces if f.offset_m is not None and f.face_id not in MOVED]
+    assert len(sound) >= 6
+    for f in sound:
+        assert abs(f.offset_m) < min(4 * f.offset_sigma_m + 0.005, 0.015), f
 
 
 @pytest.mark.parametrize("refine, judge_every", [(True, 50), (False, 0), (False, 50)])
@@ -221,11 +222,15 @@ def test_an_online_run_writes_the_refined_report(tmp_path, refine, judge_every):
     cfg.backend.isam2.judge_every = judge_every
     run_pipeline(tmp_path / "seq", tmp_path / "out", mode="online", config=cfg)
     faces = load_deviations(tmp_path / "out" / JSON_FILE).faces
-    assert ([f.face_id for f in faces if f.status == "deviating"] == ["r00E"]) == bool(refine or judge_every), faces
+    deviating = [f.face_id for f in faces if f.status == "deviating"]
     if refine or judge_every:
+        assert deviating == ["r00E"], faces
         for f in faces:
             if f.offset_m is not None:
                 assert abs(f.offset_m - MOVED.get(f.face_id, 0.0)) < min(4 * f.offset_sigma_m + 0.005, 0.015), f
+    else:
+        sound_off = [f for f in faces if f.face_id not in MOVED and f.status == "deviating"]
+        assert len(sound_off) >= 3 and all(abs(f.offset_m) > 0.05 for f in sound_off), faces
 
 
 def tilted_plan(plane_map: PlaneMap, face_id: str, deg: float) -> PlaneMap:

@@ -60,7 +60,7 @@ def test_bad_json_names_the_field(tmp_path, written):
     raw = json.loads((out / JSON_FILE).read_text())
     raw["faces"][0]["status"] = "wonky"
     (tmp_path / "bad.json").write_text(json.dumps(raw))
-    with pytest.raises(FormatError, match="faces"):
+    with pytest.raises(FormatError, match=r"faces\[0\]\.status"):
         load_deviations(tmp_path / "bad.json")
 
 

@@ -40,18 +40,20 @@ def test_eval_writes_metrics_and_prints_every_method(tmp_path):
     assert np.degrees(np.arccos(R_B_S[2, 2])) < 0.05
 
 
-def test_eval_of_a_missing_run_is_one_line(tmp_path):
-    result = CliRunner().invoke(app, ["eval", str(tmp_path / "nope"), "--gt", str(tmp_path)])
-    assert result.exit_code == 2
-    assert "Traceback" not in result.output and len(result.output.strip().splitlines()) == 1
-
-
 @pytest.fixture(scope="module")
 def finished_run(tmp_path_factory):
     root = tmp_path_factory.mktemp("eval")
     write_sequence(root / "seq", 30, rooms=(1, 1))
     assert CliRunner().invoke(app, ["run", str(root / "seq"), "-o", str(root / "out")]).exit_code == 0
     return root / "seq", root / "out"
+
+
+def test_eval_of_a_missing_run_or_truth_is_one_line(finished_run, tmp_path):
+    seq, out = finished_run
+    result = CliRunner().invoke(app, ["eval", str(tmp_path / "nope"), "--gt", str(seq)])
+    assert_one_line_error(result, 2, "nope")
+    result = CliRunner().invoke(app, ["eval", str(out), "--gt", str(tmp_path / "absent")])
+    assert_one_line_error(result, 2, "absent")
 
 
 def _set(key, value):

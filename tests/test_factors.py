@@ -206,7 +206,7 @@ def test_plane_prior_factor():
 
 
 def test_same_pose_and_anchor_key_is_refused():
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="different keys"):
         local_plane_factor([0, 0, 1, 1], gtsam.noiseModel.Unit.Create(3), XA, XA, L)
 
 

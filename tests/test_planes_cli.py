@@ -65,6 +65,10 @@ def test_planes_on_sequence_with_pinhole_options(tmp_path):
     assert again.exit_code == 0, again.output
     after = load_sequence(tmp_path)
     assert [len(kf.planes) for kf in after.keyframes] == [len(kf.planes) for kf in before.keyframes]
+    for kf_before, kf_after in zip(before.keyframes, after.keyframes):
+        for a, b in zip(kf_before.planes, kf_after.planes):
+            np.testing.assert_allclose(a.plane, b.plane, atol=1e-9)
+            np.testing.assert_allclose(a.cov, b.cov, atol=1e-12)
 
 
 def test_planes_errors(tmp_path):

@@ -268,8 +268,11 @@ def test_a_sequence_of_one_keyframe_runs(world, tmp_path, mode):
     assert len(read_tum(tmp_path / "out" / "trajectory_bim.tum")[0]) == 1
 
 
-@pytest.mark.parametrize("case, exit_code", [("nan_pose", 3), ("negative_d", 3), ("empty", 3), ("output_is_a_file", 2)])
-def test_bad_input_or_output_is_one_line(world, tmp_path, case, exit_code):
+@pytest.mark.parametrize("case, exit_code, fragments", [
+    ("nan_pose", 3, ("line 6", "T_S_C")), ("negative_d", 3, ("line 6", "planes[0].d")),
+    ("empty", 3, ("keyframes.jsonl", "no keyframes")), ("output_is_a_file", 2, ("out",)),
+])
+def test_bad_input_or_output_is_one_line(world, tmp_path, case, exit_code, fragments):
     """NaN (which would go singular, or into the outputs), a plane behind its camera, no
     keyframes, an output folder that is a file: one line, no traceback, nothing written."""
     _, root = world
@@ -293,7 +296,7 @@ def test_bad_input_or_output_is_one_line(world, tmp_path, case, exit_code):
     if case == "output_is_a_file":
         out.write_text("")
     result = run(seq, "-o", out)
-    assert_one_line_error(result, exit_code)
+    assert_one_line_error(result, exit_code, *fragments)
     assert out.is_file() if case == "output_is_a_file" else not out.exists()
 
 

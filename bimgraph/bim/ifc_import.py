@@ -36,12 +36,16 @@ def import_ifc(path, cfg: BimImportConfig, log=None):
     log = log or (lambda message: None)
     started = time.perf_counter()
     path = Path(path)
-    model = open_model(path)
+    model = open_model(path, log)
     walls = model.by_type("IfcWall")
     if not walls:
         raise InputError(f"{path}: the model has no walls (IfcWall)")
-    reader = ModelReader(model, cfg.threads)
-    voids = {wall.id(): [rel.RelatedOpeningElement for rel in wall.HasOpenings] for wall in walls}
+    try:
+        reader = ModelReader(model, cfg.threads)
+    except (InputError, AttributeError, ValueError) as err:  # (a cycle, a reference to no entity, no axes)
+        raise InputError(f"{path}: the building's placement cannot be read ({err})") from None
+    voids = {wall.id(): [rel.RelatedOpeningElement for rel in wall.HasOpenings if rel.RelatedOpeningElement is not None]
+             for wall in walls}
     spaces = model.by_type("IfcSpace")
     meshes, solids = reader.meshes_and_solids(walls, [o for os in voids.values() for o in os] + list(spaces))
     skipped = {"walls skipped (no geometry)": _skip(log, "wall", [w for w in walls if w.id() not in meshes], "no geometry")}
@@ -49,12 +53,15 @@ def import_ifc(path, cfg: BimImportConfig, log=None):
     for wall in curtain_walls:
         log(f"warning: curtain wall {wall.GlobalId} ({wall.Name}): not imported")
 
-    wall_faces = _wall_faces(reader, [w for w in walls if w.id() in meshes], meshes, voids, solids, cfg, log)
+    wall_faces, unreadable = _wall_faces(reader, [w for w in walls if w.id() in meshes], meshes, voids, solids, cfg, log)
+    skipped["walls skipped (geometry unreadable)"] = len(unreadable)
     sections = _split_per_room(reader, wall_faces, meshes, spaces, solids, cfg)
+    if reader.unread_boundaries:
+        log(f"warning: {reader.unread_boundaries} space boundaries could not be read, skipped (their rooms are found by their solids)")
     # Whatever takes a wall's faces (a sliver, none vertical or along its axis, all below the
     # minimum area, or cut up by openings and rooms), it must not vanish unnoticed.
     imported = {section.wall_guid for section in sections}
-    faceless = [w for w in walls if w.id() in meshes and w.GlobalId not in imported]
+    faceless = [w for w in walls if w.id() in meshes and w.id() not in unreadable and w.GlobalId not in imported]
     skipped["walls skipped (no side face)"] = _skip(log, "wall", faceless, f"no side face of at least {cfg.min_face_area_m2} m2")
     if not sections:
         raise InputError(f"{path}: no wall face of at least {cfg.min_face_area_m2} m2")
@@ -74,29 +81,20 @@ def _skip(log, kind: str, elements, reason: str) -> int:
     return len(elements)
 
 
-def _wall_faces(reader: ModelReader, walls, meshes, voids, solids, cfg, log) -> list[tuple[object, F.Face, float]]:
+def _wall_faces(reader: ModelReader, walls, meshes, voids, solids, cfg, log) -> tuple[list[tuple[object, F.Face, float]], set[int]]:
     """[(wall, face, depth behind the face)] for every side face, openings cut out (`voids`:
-    wall id -> its openings, `solids`: their meshes by id)."""
+    wall id -> its openings, `solids`: their meshes by id); and the ids of the walls whose
+    geometry could not be read (warned about through `log`)."""
     angle_tol, axis_tol = np.radians(cfg.coplanar_angle_deg), np.radians(cfg.axis_tol_deg)
-    per_wall = {}
+    per_wall, unreadable = {}, set()
     for wall in walls:
-        mesh = meshes[wall.id()]
-        axis = reader.axis(wall, mesh.T_B_E)
-        steps = np.diff(axis, axis=0) if axis is not None else np.empty((0, 2))
-        steps = steps[np.linalg.norm(steps, axis=1) > 1e-9]
-        # A straight axis says at once which faces are sides. Along a bent or curved one that
-        # depends on where a face lies, and a curved side comes as strips to be merged first.
-        straight = len(steps) <= 1
-        along = [np.append(steps[0] / np.linalg.norm(steps[0]), 0.0)] if len(steps) else [F.long_axis(mesh.V)]
-        found = F.vertical_faces(mesh.V, mesh.T, np.radians(cfg.vertical_tol_deg), angle_tol,
-                                 cfg.coplanar_distance_m, cfg.grid_m, along if straight else None, axis_tol)
-        if not straight:
-            found = curved.merge_facets(found, cfg.curved_face_tol_m, cfg.coplanar_distance_m, cfg.grid_m)
-            line = shapely.LineString(axis)
-            found = [face for face in found if curved.runs_along(face, line, axis_tol, cfg.grid_m)]
-        sides = [(face, F.depth_behind(face, found, angle_tol)) for face in found]
-        per_wall[wall.id()] = (wall, sides)
-    for opening in (o for wall in walls for o in voids[wall.id()] if o.id() not in solids):
+        try:
+            per_wall[wall.id()] = (wall, _sides(reader, wall, meshes[wall.id()], cfg, angle_tol, axis_tol))
+        except Exception as err:  # a geometry this reader cannot follow: the rest goes on
+            unreadable.add(wall.id())
+            log(f"warning: wall {wall.GlobalId} ({wall.Name}): its geometry cannot be read "
+                f"({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}), skipped")
+    for opening in (o for wall, _ in per_wall.values() for o in voids[wall.id()] if o.id() not in solids):
         log(f"warning: opening {opening.GlobalId} has no geometry; its wall keeps the area")
 
     out = []
@@ -109,7 +107,25 @@ def _wall_faces(reader: ModelReader, walls, meshes, voids, solids, cfg, log) -> 
                 face.region = face.region.difference(shapely.union_all(holes, grid_size=cfg.grid_m), grid_size=cfg.grid_m)
             if face.region.area >= cfg.min_face_area_m2:
                 out.append((wall, face, depth))
-    return out
+    return out, unreadable
+
+
+def _sides(reader: ModelReader, wall, mesh, cfg, angle_tol: float, axis_tol: float) -> list[tuple[F.Face, float]]:
+    """A wall's side faces (before openings), each with the depth of the wall behind it."""
+    axis = reader.axis(wall, mesh.T_B_E)
+    steps = np.diff(axis, axis=0) if axis is not None else np.empty((0, 2))
+    steps = steps[np.linalg.norm(steps, axis=1) > 1e-9]
+    # A straight axis says at once which faces are sides. Along a bent or curved one that
+    # depends on where a face lies, and a curved side comes as strips to be merged first.
+    straight = len(steps) <= 1
+    along = [np.append(steps[0] / np.linalg.norm(steps[0]), 0.0)] if len(steps) else [F.long_axis(mesh.V)]
+    found = F.vertical_faces(mesh.V, mesh.T, np.radians(cfg.vertical_tol_deg), angle_tol,
+                             cfg.coplanar_distance_m, cfg.grid_m, along if straight else None, axis_tol)
+    if not straight:
+        found = curved.merge_facets(found, cfg.curved_face_tol_m, cfg.coplanar_distance_m, cfg.grid_m)
+        line = shapely.LineString(axis)
+        found = [face for face in found if curved.runs_along(face, line, axis_tol, cfg.grid_m)]
+    return [(face, F.depth_behind(face, found, angle_tol)) for face in found]
 
 
 def _split_per_room(reader: ModelReader, wall_faces, meshes, spaces, solids, cfg) -> list[BimFace]:
@@ -121,7 +137,8 @@ def _split_per_room(reader: ModelReader, wall_faces, meshes, spaces, solids, cfg
     for b in reader.boundaries([wall for wall, _, _ in wall_faces]):
         boundaries.setdefault(b.wall_guid, []).append(b)
 
-    junctions = None if spaces else Junctions({wall.GlobalId: meshes[wall.id()] for wall, _, _ in wall_faces})
+    # (rooms without a solid or a boundary on these walls say nothing: the junctions split then)
+    junctions = None if rooms.items or boundaries else Junctions({wall.GlobalId: meshes[wall.id()] for wall, _, _ in wall_faces})
     angle_tol = np.radians(cfg.vertical_tol_deg)
     sections = []
     counter = Counter()

@@ -8,12 +8,14 @@ small. Every matrix below is rigid; file units are scaled to metres once, at the
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import ifcopenshell
 import ifcopenshell.geom
+import ifcopenshell.ifcopenshell_wrapper as wrapper
 import ifcopenshell.util.element
 import ifcopenshell.util.placement
 import ifcopenshell.util.shape
@@ -27,6 +29,8 @@ from bimgraph.errors import InputError
 from bimgraph.geometry import inverse
 
 _END_MARK = b"END-ISO-10303-21;"
+_BOM = b"\xef\xbb\xbf"
+_MAX_PARSE_WARNINGS = 5
 
 
 @dataclass
@@ -50,9 +54,13 @@ class Boundary:
         self.normal = loop_normal(self.points)
 
 
-def open_model(path) -> ifcopenshell.file:
-    """Open an IFC file; a missing, non-IFC or truncated file is an InputError."""
+def open_model(path, log=None) -> ifcopenshell.file:
+    """Open an IFC file; a missing, non-IFC or truncated file, or one that names two entities
+    alike, is an InputError. What else the parser found wrong (a syntax error, a reference
+    to no entity) goes to `log`, one line each: past such an error the parser may have lost
+    entities, so the file is read, but not in silence."""
     path = Path(path)
+    log = log or (lambda message: None)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     with open(path, "rb") as stream:
@@ -60,14 +68,42 @@ def open_model(path) -> ifcopenshell.file:
         stream.seek(0, 2)
         stream.seek(max(0, stream.tell() - 1024))
         tail = stream.read()
+    bom = head.startswith(_BOM)
     if not head.lstrip(b"\xef\xbb\xbf \t\r\n").startswith(b"ISO-10303-21;"):  # a BOM is allowed
         raise InputError(f"{path}: not an IFC file (no ISO-10303-21 header)")
     if _END_MARK not in tail:
         raise InputError(f"{path}: truncated IFC file (no {_END_MARK.decode()} at its end)")
+    wrapper.set_log_format_json()
+    wrapper.get_log()  # (reading the parser's log empties it: what it holds next is this file's)
     try:
-        return ifcopenshell.open(str(path))
+        # (the parser itself refuses a byte order mark, which editors on Windows write)
+        model = ifcopenshell.file.from_string(path.read_bytes()[len(_BOM):].decode("utf-8", "replace")) if bom \
+            else ifcopenshell.open(str(path))
     except Exception as err:  # ifcopenshell raises several unrelated types on bad files
         raise InputError(f"{path}: cannot parse IFC ({str(err).splitlines()[0] if str(err) else type(err).__name__})") from None
+    problems = _parse_problems(wrapper.get_log())
+    duplicates = [message for message in problems if message.startswith("Overwriting instance")]
+    if duplicates:  # (the geometry kernel crashes on such a file)
+        raise InputError(f"{path}: two entities with one name ({duplicates[0]})")
+    for message in problems[:_MAX_PARSE_WARNINGS]:
+        log(f"warning: {path.name}: {message}")
+    if len(problems) > _MAX_PARSE_WARNINGS:
+        log(f"warning: {path.name}: {len(problems) - _MAX_PARSE_WARNINGS} more problems of the file's syntax")
+    return model
+
+
+def _parse_problems(log_text: str) -> list[str]:
+    """The messages of errors and of duplicate entities in ifcopenshell's JSON log."""
+    out = []
+    for line in log_text.splitlines():
+        try:
+            record = json.loads(line)
+        except ValueError:
+            continue
+        message = str(record.get("message", "")).strip()
+        if record.get("level") == "error" or message.startswith("Overwriting instance"):
+            out.append(message)
+    return out
 
 
 class ModelReader:
@@ -84,6 +120,7 @@ class ModelReader:
         self.T_B_W = inverse(self.T_W_B)
         self._storeys = {}  # element id -> (storey name, elevation)
         self._storey_rows = {}  # storey id -> (name, elevation)
+        self.unread_boundaries = 0  # space boundaries whose geometry `boundaries` could not read
         self.settings = {}
         for subtract in (False, True):
             self.settings[subtract] = ifcopenshell.geom.settings()
@@ -102,23 +139,34 @@ class ModelReader:
         return self._local_placement(element.ObjectPlacement)
 
     def _local_placement(self, placement) -> np.ndarray:
-        """Placements chain up to the building and the site: each link is computed once."""
-        key = placement.id()
-        if key not in self._placements:
-            if not placement.is_a("IfcLocalPlacement"):  # grid or linear placements
-                T = self.to_metres(ifcopenshell.util.placement.get_local_placement(placement))
+        """Placements chain up to the building and the site: each link is computed once,
+        walking up the chain without recursion (a file may nest them deeper than Python's
+        stack, or in a cycle, which is an InputError)."""
+        chain, seen = [], set()
+        while placement.id() not in self._placements:
+            if placement.id() in seen:
+                raise InputError(f"placement #{placement.id()} is placed relative to itself")
+            seen.add(placement.id())
+            chain.append(placement)
+            if not placement.is_a("IfcLocalPlacement") or placement.PlacementRelTo is None:
+                break
+            placement = placement.PlacementRelTo
+        for link in reversed(chain):
+            if not link.is_a("IfcLocalPlacement"):  # grid or linear placements
+                T = self.to_metres(ifcopenshell.util.placement.get_local_placement(link))
             else:
-                T = self.to_metres(schema.axis2placement(placement.RelativePlacement))
-                if placement.PlacementRelTo is not None:
-                    T = self._local_placement(placement.PlacementRelTo) @ T
-            self._placements[key] = T
-        return self._placements[key]
+                T = self.to_metres(schema.axis2placement(link.RelativePlacement))
+                if link.PlacementRelTo is not None:
+                    T = self._placements[link.PlacementRelTo.id()] @ T
+            self._placements[link.id()] = T
+        return self._placements[chain[0].id() if chain else placement.id()]
 
     def meshes(self, elements, subtract_openings: bool = False) -> dict[int, Mesh]:
         """Triangulated geometry of `elements` in B, by entity id; elements whose geometry
         fails are absent. Wall openings are cut out of the face polygons afterwards, at a
         fraction of the cost of `subtract_openings`."""
         out = {}
+        elements = [e for e in elements if self._placeable(e)]  # (the kernel crashes on a placement cycle)
         if not elements:
             return out
         iterator = ifcopenshell.geom.iterator(self.settings[subtract_openings], self.model, self.threads or available_cores(),
@@ -135,6 +183,15 @@ class ModelReader:
                     break
         return out
 
+    def _placeable(self, element) -> bool:
+        """Whether the element's placement can be read (it is in no cycle, references no
+        missing entity)."""
+        try:
+            self.placement(element)
+            return True
+        except Exception:
+            return False
+
     def storey(self, element) -> tuple[str, float]:
         """Name and elevation in B of the storey containing `element` ("" and 0 if none)."""
         if element.id() not in self._storeys:
@@ -145,7 +202,7 @@ class ModelReader:
                 self._storeys[element.id()] = ("", 0.0)
             else:
                 if container.id() not in self._storey_rows:  # each storey once, for all its elements
-                    elevation = float((self.T_B_W @ self.placement(container))[2, 3])
+                    elevation = float((self.T_B_W @ self.placement(container))[2, 3]) if self._placeable(container) else 0.0
                     self._storey_rows[container.id()] = (container.Name or "", elevation)
                 self._storeys[element.id()] = self._storey_rows[container.id()]
         return self._storeys[element.id()]
@@ -187,7 +244,12 @@ class ModelReader:
         come first, each part in the order of `solids`."""
         built, others = {}, []
         for element in [*elements, *solids]:
-            parts = self._built(element)
+            try:
+                parts = self._built(element)
+            except InputError:  # a placement cycle, on which the geometry kernel would crash
+                continue
+            except Exception:  # a body the schema reader cannot follow (a broken reference, a
+                parts = None   # degenerate loop): the geometry kernel judges it, and warns
             if parts is None:
                 others.append(element)
             else:
@@ -223,11 +285,15 @@ class ModelReader:
                 continue
             if geometry is None or not geometry.is_a("IfcConnectionSurfaceGeometry"):
                 continue
-            points = schema.surface_points(geometry.SurfaceOnRelatingElement)
-            if points is None or len(points) < 3:
+            try:
+                points = schema.surface_points(geometry.SurfaceOnRelatingElement)
+                if points is None or len(points) < 3:
+                    continue
+                if space.id() not in spaces:
+                    spaces[space.id()] = (space.GlobalId, self.T_B_W @ self.placement(space))
+            except Exception:  # (a broken reference or a cycle: the room is found by its solid, or not at all)
+                self.unread_boundaries += 1
                 continue
-            if space.id() not in spaces:
-                spaces[space.id()] = (space.GlobalId, self.T_B_W @ self.placement(space))
             guid, T_B_S = spaces[space.id()]
             points = points * self.scale
             out.append(Boundary(guid, wall_guids[wall.id()], points @ T_B_S[:3, :3].T + T_B_S[:3, 3]))

@@ -33,14 +33,32 @@ def axis2placement(placement) -> np.ndarray:
 def _a2p(spelling: str, location: tuple, axis: tuple | None, ref: tuple | None) -> np.ndarray:
     """`spelling`, the values' repr, keeps -0.0 and 0.0 apart, which tuple equality does not."""
     z = np.array(axis or (0, 0, 1), dtype=float)
+    if not np.linalg.norm(z) > 0:
+        raise ValueError(f"placement axis {axis} has no direction")
     z /= np.linalg.norm(z)
     # IFC allows a RefDirection that is not perpendicular to the Axis: its projection onto the
-    # plane across the axis is the x axis (as geometry kernels take it), so the frame is rigid
-    x = np.array(ref or (1, 0, 0), dtype=float)
+    # plane across the axis is the x axis (as geometry kernels take it), so the frame is rigid.
+    # An Axis without one breaks IFC's rule that both or neither be given: x is then what
+    # ifcopenshell's kernel takes (OpenCASCADE's gp_Ax2 from a normal), so that a body read
+    # here and one the kernel reads in the same file agree
+    x = np.array(ref, dtype=float) if ref else _perpendicular(z) if axis else np.array([1.0, 0.0, 0.0])
     x = x - (x @ z) * z
+    if not np.linalg.norm(x) > 1e-12:
+        raise ValueError(f"placement RefDirection {ref} is along its axis {axis}")
     M = ifcopenshell.util.placement.a2p(location, z, x / np.linalg.norm(x))
     M.flags.writeable = False
     return M
+
+
+def _perpendicular(z: np.ndarray) -> np.ndarray:
+    """OpenCASCADE's x direction of a frame given its z alone (`gp_Ax2(P, V)`): zero in the
+    coordinate of z's smallest component."""
+    a, b, c = z
+    if abs(b) <= abs(a) and abs(b) <= abs(c):
+        return np.array([-c, 0.0, a]) if abs(a) > abs(c) else np.array([c, 0.0, -a])
+    if abs(a) <= abs(b) and abs(a) <= abs(c):
+        return np.array([0.0, -c, b]) if abs(b) > abs(c) else np.array([0.0, c, -b])
+    return np.array([-b, a, 0.0]) if abs(a) > abs(b) else np.array([b, -a, 0.0])
 
 
 def body_items(element) -> list:
@@ -70,6 +88,8 @@ def _profile_points(profile) -> np.ndarray | None:
     position = getattr(profile, "Position", None)
     if position is not None:
         x = np.asarray(position.RefDirection.DirectionRatios[:2], dtype=float) if position.RefDirection else np.array([1.0, 0.0])
+        if not np.linalg.norm(x) > 0:
+            return None  # (left to the geometry kernel, which warns)
         x /= np.linalg.norm(x)
         R = np.column_stack([x, [-x[1], x[0]]])
         points = points @ R.T + np.asarray(position.Location.Coordinates[:2], dtype=float)
@@ -192,6 +212,8 @@ def surface_points(surface) -> np.ndarray | None:
         if line is None:
             return None
         direction = np.asarray(surface.ExtrudedDirection.DirectionRatios, dtype=float)
+        if not np.linalg.norm(direction) > 0:
+            return None
         direction = direction / np.linalg.norm(direction) * surface.Depth
         loop = np.vstack([line, line[::-1] + direction])
         M = axis2placement(surface.Position)

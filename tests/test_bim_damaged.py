@@ -1,0 +1,163 @@
+"""Damaged and unusual IFC files: the import warns and skips what it cannot read, and a file it
+cannot read at all is one line. The generated house (tests/ifc_house.py) is edited as text, as
+a broken exporter or a hand edit would leave it."""
+
+import re
+
+import numpy as np
+import pytest
+from cli_errors import assert_one_line_error
+from ifc_house import house, wall_named
+from typer.testing import CliRunner
+
+from bimgraph.bim.ifc_import import import_ifc
+from bimgraph.bim.ifc_write import write_ifc
+from bimgraph.cli import app
+from bimgraph.config import BimImportConfig
+from bimgraph.errors import InputError
+
+
+@pytest.fixture(scope="module")
+def house_text(tmp_path_factory):
+    path = tmp_path_factory.mktemp("house") / "house.ifc"
+    write_ifc(house(), path)
+    return path.read_text()
+
+
+def entity(text: str, ifc_type: str, name: str | None = None) -> str:
+    """The line of the first entity of `ifc_type` (with that Name, if given)."""
+    pattern = rf"^#\d+={ifc_type}\('[^']*',[^,]*,'{re.escape(name)}'.*$" if name else rf"^#\d+={ifc_type}\(.*$"
+    return re.search(pattern, text, re.MULTILINE).group(0)
+
+
+def line_of(text: str, ref: str) -> str:
+    return re.search(rf"^{ref}=.*$", text, re.MULTILINE).group(0)
+
+
+def imported(path):
+    warnings = []
+    plane_map, _ = import_ifc(path, BimImportConfig(), warnings.append)
+    return plane_map, warnings
+
+
+def walls_of(plane_map) -> set[str]:
+    return {face.wall_name for face in plane_map.faces}
+
+
+def test_the_house_as_written(house_text, tmp_path):
+    (tmp_path / "m.ifc").write_text(house_text)
+    plane_map, warnings = imported(tmp_path / "m.ifc")
+    assert warnings == [] and len(walls_of(plane_map)) == 9
+
+
+def test_a_syntax_error_is_warned_about_not_lost_in_silence(house_text, tmp_path):
+    """Past a syntax error the parser may fold the entities after it into one: what it lost
+    is not lost in silence."""
+    wall = entity(house_text, "IFCWALL", "E0")
+    body = line_of(house_text, wall.split(",")[6])
+    (tmp_path / "m.ifc").write_text(house_text.replace(body, body.replace("(", "((", 1)))
+    _, warnings = imported(tmp_path / "m.ifc")
+    assert warnings and all(w.startswith("warning: m.ifc: ") for w in warnings[:5])
+
+
+def test_two_entities_of_one_name_are_one_line(house_text, tmp_path):
+    """(The geometry kernel would crash on such a file.)"""
+    name = entity(house_text, "IFCWALL").split("=")[0]
+    (tmp_path / "m.ifc").write_text(house_text.replace("DATA;\n", f"DATA;\n{name}=IFCCARTESIANPOINT((0.,0.,0.));\n", 1))
+    with pytest.raises(InputError, match="two entities with one name"):
+        imported(tmp_path / "m.ifc")
+    result = CliRunner().invoke(app, ["bim", str(tmp_path / "m.ifc"), "-o", str(tmp_path / "planes.json")])
+    assert_one_line_error(result, 2, "m.ifc", "two entities")
+    assert not (tmp_path / "planes.json").exists()
+
+
+@pytest.mark.parametrize("damage", ["profile", "placement", "representation_type", "placement_cycle"])
+def test_a_wall_that_cannot_be_read_is_skipped_and_the_rest_goes_on(house_text, tmp_path, damage):
+    wall = entity(house_text, "IFCWALL", "E0")
+    fields = wall.split(",")
+    if damage == "profile":  # its extrusion's profile is an entity the file does not hold
+        shape = line_of(house_text, fields[6])
+        solids = [line_of(house_text, ref) for ref in re.findall(r"#\d+", shape.split("=", 1)[1])]
+        items = [line_of(house_text, ref) for rep in solids for ref in re.findall(r"#\d+", rep.split("=", 1)[1])]
+        solid = next(line for line in items if "IFCEXTRUDEDAREASOLID(" in line)
+        text = house_text.replace(solid, re.sub(r"\(#\d+,", "(#88888,", solid, count=1))
+    elif damage == "placement":  # its placement's axes are missing
+        placement = line_of(house_text, fields[5])
+        text = house_text.replace(placement, re.sub(r",#\d+\);$", ",#99993);", placement))
+    elif damage == "representation_type":  # its representation is a point
+        point = entity(house_text, "IFCCARTESIANPOINT").split("=")[0]
+        text = house_text.replace(wall, ",".join(fields[:6] + [point] + fields[7:]))
+    else:  # placed relative to itself
+        placement = line_of(house_text, fields[5])
+        text = house_text.replace(placement, re.sub(r"\(#\d+,", f"({placement.split('=')[0]},", placement, count=1))
+    (tmp_path / "m.ifc").write_text(text)
+    plane_map, warnings = imported(tmp_path / "m.ifc")
+    assert "E0" not in walls_of(plane_map) and len(walls_of(plane_map)) == 8
+    assert any("E0" in w and "skipped" in w for w in warnings), warnings
+
+
+def test_a_building_placed_relative_to_itself_is_one_line(house_text, tmp_path):
+    building = entity(house_text, "IFCBUILDING")
+    placement = line_of(house_text, building.split(",")[5])
+    ref = placement.split("=")[0]
+    (tmp_path / "m.ifc").write_text(house_text.replace(placement, re.sub(r"\((#\d+|\$),", f"({ref},", placement, count=1)))
+    with pytest.raises(InputError, match="placement"):
+        imported(tmp_path / "m.ifc")
+
+
+def test_a_byte_order_mark_is_read(house_text, tmp_path):
+    (tmp_path / "plain.ifc").write_text(house_text)
+    (tmp_path / "bom.ifc").write_text(house_text, encoding="utf-8-sig")
+    plain, _ = imported(tmp_path / "plain.ifc")
+    with_bom, warnings = imported(tmp_path / "bom.ifc")
+    assert warnings == [] and [f.model_dump() for f in with_bom.faces] == [f.model_dump() for f in plain.faces]
+
+
+def test_an_axis_without_ref_direction_is_read_as_the_geometry_kernel_reads_it(tmp_path):
+    """IFC wants Axis and RefDirection both or neither; given an Axis alone, the schema reader
+    and ifcopenshell's kernel must agree (here a wall body turned to extrude along x)."""
+    import ifcopenshell
+    import ifcopenshell.geom
+    import ifcopenshell.util.shape
+
+    path = tmp_path / "m.ifc"
+    write_ifc(house(), path)
+    model = ifcopenshell.open(str(path))
+    wall = wall_named(model, "E0")
+    solid = next(r for r in wall.Representation.Representations if r.RepresentationIdentifier == "Body").Items[0]
+    solid.Position.Axis = model.createIfcDirection((1.0, 0.0, 0.0))
+    solid.Position.RefDirection = None
+    model.write(str(path))
+    plane_map, warnings = imported(path)
+    settings = ifcopenshell.geom.settings()
+    settings.set("use-world-coords", True)
+    V = ifcopenshell.util.shape.get_vertices(ifcopenshell.geom.create_shape(settings, wall).geometry)
+    faces = [f for f in plane_map.faces if f.wall_name == "E0"]
+    assert faces and not warnings
+    corners = np.vstack([np.asarray(f.polygon) for f in faces])
+    # (B is the building's frame, the world's here: write_ifc places the building at the origin)
+    np.testing.assert_allclose(corners.min(axis=0), V.min(axis=0), atol=1e-6)
+    np.testing.assert_allclose(corners.max(axis=0), V.max(axis=0), atol=1e-6)
+
+
+def test_rooms_without_geometry_leave_the_split_to_the_junctions(tmp_path):
+    """A model whose only IfcSpace has no solid and no boundary says nothing of rooms: its
+    faces are split where walls meet them, as in a model without rooms."""
+    import ifcopenshell
+    import ifcopenshell.api.root
+
+    path = tmp_path / "m.ifc"
+    write_ifc(house(), path)
+    model = ifcopenshell.open(str(path))
+    for space in model.by_type("IfcSpace"):
+        model.remove(space)
+    without, _ = import_ifc_model(model, tmp_path / "none.ifc")
+    ifcopenshell.api.root.create_entity(model, ifc_class="IfcSpace", name="empty")
+    with_empty, _ = import_ifc_model(model, tmp_path / "empty.ifc")
+    assert {f.split for f in without.faces} >= {"junction"}
+    assert [(f.id, f.split) for f in with_empty.faces] == [(f.id, f.split) for f in without.faces]
+
+
+def import_ifc_model(model, path):
+    model.write(str(path))
+    return imported(path)

@@ -10,6 +10,7 @@ import contextlib
 import functools
 import os
 import sys
+import warnings
 from pathlib import Path
 from typing import Optional
 
@@ -96,7 +97,11 @@ def friendly_errors(func):
         from bimgraph.errors import BimgraphError
 
         try:
-            return func(*args, **kwargs)
+            # (numpy's floating-point warnings, on absurd input such as a pose 1e300 m away,
+            # would print lines of source beside the one of the error its values then raise)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                return func(*args, **kwargs)
         except BimgraphError as err:
             raise typer.Exit(_error(str(err), err.exit_code)) from None
         except KeyboardInterrupt:

@@ -29,10 +29,21 @@ def read_text(path: Path) -> str:
 
 
 def read_json(path: Path):
+    return parse_json(read_text(path), str(path), lines=True)
+
+
+def parse_json(text: str, where: str, lines: bool = False):
+    """JSON data of `text`; what is not JSON, or what Python will not read as such (nesting
+    deeper than its stack, integers of thousands of digits) is a FormatError at `where` (and
+    the line, with `lines`, for a whole file)."""
     try:
-        return json.loads(read_text(path))
+        return json.loads(text)
     except json.JSONDecodeError as err:
-        raise FormatError(f"{path}: line {err.lineno}: invalid JSON ({err.msg})") from None
+        raise FormatError(f"{where}: {f'line {err.lineno}: ' if lines else ''}invalid JSON ({err.msg})") from None
+    except RecursionError:
+        raise FormatError(f"{where}: invalid JSON (nested too deeply)") from None
+    except ValueError as err:  # (e.g. an integer beyond Python's 4300 digits)
+        raise FormatError(f"{where}: invalid JSON ({str(err).splitlines()[0]})") from None
 
 
 def read_yaml(path: Path):
@@ -46,6 +57,10 @@ def read_yaml(path: Path):
         # (a MarkedYAMLError has a `problem`; a ReaderError, for control characters, a `reason`)
         problem = getattr(err, "problem", None) or getattr(err, "reason", None) or "not YAML"
         raise FormatError(f"{path}: {where}invalid YAML ({problem})") from None
+    except RecursionError:
+        raise FormatError(f"{path}: invalid YAML (nested too deeply)") from None
+    except ValueError as err:  # (e.g. an integer beyond Python's 4300 digits)
+        raise FormatError(f"{path}: invalid YAML ({str(err).splitlines()[0]})") from None
 
 
 def ensure_folder(path: Path, target: Path | None = None) -> Path:

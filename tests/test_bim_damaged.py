@@ -14,7 +14,7 @@ from bimgraph.bim.ifc_import import import_ifc
 from bimgraph.bim.ifc_write import write_ifc
 from bimgraph.cli import app
 from bimgraph.config import BimImportConfig
-from bimgraph.errors import InputError
+from bimgraph.errors import FormatError, InputError
 
 
 @pytest.fixture(scope="module")
@@ -64,10 +64,10 @@ def test_two_entities_of_one_name_are_one_line(house_text, tmp_path):
     """(The geometry kernel would crash on such a file.)"""
     name = entity(house_text, "IFCWALL").split("=")[0]
     (tmp_path / "m.ifc").write_text(house_text.replace("DATA;\n", f"DATA;\n{name}=IFCCARTESIANPOINT((0.,0.,0.));\n", 1))
-    with pytest.raises(InputError, match="two entities with one name"):
+    with pytest.raises(FormatError, match="two entities with one name"):
         imported(tmp_path / "m.ifc")
     result = CliRunner().invoke(app, ["bim", str(tmp_path / "m.ifc"), "-o", str(tmp_path / "planes.json")])
-    assert_one_line_error(result, 2, "m.ifc", "two entities")
+    assert_one_line_error(result, 3, "m.ifc", "two entities")
     assert not (tmp_path / "planes.json").exists()
 
 

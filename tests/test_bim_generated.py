@@ -17,7 +17,7 @@ from bimgraph.bim.ifc_write import edge_on_wall_face, write_ifc
 from bimgraph.bim.planemap import load_plane_map
 from bimgraph.cli import app
 from bimgraph.config import BimImportConfig
-from bimgraph.errors import InputError
+from bimgraph.errors import FormatError, InputError
 
 
 @pytest.fixture(scope="module", params=[("IFC4", "m"), ("IFC4", "mm"), ("IFC2X3", "m"), ("IFC2X3", "mm")],
@@ -106,9 +106,9 @@ def write_no_walls(path):
     write_ifc(Building("Empty", [Storey("Ground", 0.0, H)]), path)
 
 
-@pytest.mark.parametrize("case, message", [("text", "not an IFC file"), ("truncated", "truncated"),
-                                           ("no_walls", "no walls"), ("missing", "no such file")])
-def test_bad_input_is_one_line_error(case, message, tmp_path):
+@pytest.mark.parametrize("case, exit_code, message", [("text", 3, "not an IFC file"), ("truncated", 3, "truncated"),
+                                                      ("no_walls", 2, "no walls"), ("missing", 2, "no such file")])
+def test_bad_input_is_one_line_error(case, exit_code, message, tmp_path):
     model = tmp_path / "model.ifc"
     if case == "text":
         model.write_text("this is not an IFC file\n")
@@ -118,10 +118,10 @@ def test_bad_input_is_one_line_error(case, message, tmp_path):
         model.write_bytes(data[: len(data) // 2])
     elif case == "no_walls":
         write_no_walls(model)
-    with pytest.raises(InputError):
+    with pytest.raises(InputError if exit_code == 2 else FormatError):
         import_ifc(model if case != "missing" else tmp_path / "absent.ifc", BimImportConfig())
     result = CliRunner().invoke(app, ["bim", str(model), "-o", str(tmp_path / "planes.json")])
-    assert_one_line_error(result, 2, message)
+    assert_one_line_error(result, exit_code, message)
     assert not (tmp_path / "planes.json").exists()
 
 

@@ -42,6 +42,9 @@ def test_a_missing_configuration_file_is_one_line(tmp_path):
     ("sim:\n  width: 1\n", "sim: width and height (1x480) must be at least observe.stride_px (4)"),
     ("sim:\n  trajectory:\n    pitch_mean_deg: .nan\n", "sim.trajectory.pitch_mean_deg: Input should be a finite number"),
     ("sim:\n  trajectory:\n    height_min_m: 2.0\n    height_max_m: 1.0\n", "sim.trajectory: height_min_m (2.0) is above height_max_m (1.0)"),
+    # (both passed and then failed the run: an overflow, an array of 30 GiB)
+    ("backend:\n  noise:\n    odometry_trans_m: 1.0e+300\n", "backend.noise.odometry_trans_m: Input should be less than or equal to 1000"),
+    ("deviations:\n  visibility_grid_m: 1.0e-9\n", "deviations.visibility_grid_m: Input should be greater than or equal to 0.01"),
 ])
 def test_check_refuses_what_a_run_could_not_use(tmp_path, yaml, message):
     (tmp_path / "c.yaml").write_text(yaml)

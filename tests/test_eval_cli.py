@@ -64,6 +64,8 @@ def _set(key, value):
     ("extrinsic.json", lambda d: d["T_B_S"].append(0.0), "T_B_S: Tuple should have at most 7 items after validation, not 8"),
     ("extrinsic.json", lambda d: d["T_B_S"].__setitem__(0, float("nan")), "T_B_S[0]: Input should be a finite number"),
     ("extrinsic.json", _set("T_B_S", [0, 0, 0, 0, 0, 0, 0]), "T_B_S: quaternion has norm 0.0000, must be unit"),
+    ("extrinsic.json", lambda d: d["covariance"][0].__setitem__(1, 1.0), "covariance: covariance is not symmetric"),
+    ("extrinsic.json", lambda d: d["covariance"][0].__setitem__(0, -1.0), "covariance: covariance is not positive semi-definite"),
     ("associations.json", _set("associations", 5), "associations: Input should be a valid list"),
     ("associations.json", lambda d: d["associations"][0].__setitem__("observations", [[1]]),
      "associations[0].observations[0][1]: Field required"),
@@ -113,3 +115,32 @@ def test_a_run_of_another_length_is_named_and_no_metrics_are_written(finished_ru
     result = CliRunner().invoke(app, ["eval", str(good), str(short), "--gt", str(seq), "--no-baselines"])
     assert_one_line_error(result, 3, f"{short} has 25 poses for 30 keyframes")
     assert not (good / "metrics.json").exists()
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda d: d["associations"][0]["observations"].__setitem__(0, [999, 0]), "associations name plane 0 of keyframe 999"),
+    (lambda d: d["associations"][0].__setitem__("face", "nosuchface"), "associations name face 'nosuchface'"),
+])
+def test_associations_of_another_sequence_are_one_line(finished_run, tmp_path, change, message):
+    """They were counted as wrong matches, lowering the precision."""
+    seq, out = finished_run
+    run = tmp_path / "run"
+    shutil.copytree(out, run)
+    data = json.loads((run / "associations.json").read_text())
+    change(data)
+    (run / "associations.json").write_text(json.dumps(data))
+    result = CliRunner().invoke(app, ["eval", str(run), "--gt", str(seq), "--no-baselines"])
+    assert_one_line_error(result, 3, f"{run}: {message}")
+    assert not (run / "metrics.json").exists()
+
+
+def test_a_trajectory_of_other_stamps_is_one_line(finished_run, tmp_path):
+    seq, out = finished_run
+    run = tmp_path / "run"
+    shutil.copytree(out, run)
+    lines = (run / "trajectory_bim.tum").read_text().splitlines()
+    row = next(n for n, line in enumerate(lines) if line and not line.startswith("#"))
+    lines[row] = "99.0 " + lines[row].split(" ", 1)[1]
+    (run / "trajectory_bim.tum").write_text("\n".join(lines) + "\n")
+    result = CliRunner().invoke(app, ["eval", str(run), "--gt", str(seq), "--no-baselines"])
+    assert_one_line_error(result, 3, "stamps are not those of")

@@ -73,11 +73,17 @@ def test_face_moved_to_another_plane():
         (lambda f: f.update(offset=4.0), "off the plane"),
         (lambda f: f.pop("wall_guid"), "faces[0].wall_guid"),
         (lambda f: f.update(offset=float("nan")), "faces[0].offset: Input should be a finite number"),
+        (lambda f: f.update(holes=[[[1, 5, 1], [2, 5, 1]]]), "faces[0].holes[0]: List should have at least 3 items"),
+        # corners in a line: no area, whatever area the file gives it
+        (lambda f: f.update(polygon=[[0, 5, 0], [1, 5, 0], [2, 5, 0]], area=1.0), "faces[0]: polygon has zero area"),
+        (lambda f: f.update(id=""), "faces[0].id: String should have at least 1 character"),
+        (lambda f: f.update(kind="slab_top"), "faces[0]: a slab_top face must be horizontal"),
+        (lambda data: data.update(T_W_B=[0, 0, 0, 0, 0, 0, 5]), "T_W_B: quaternion has norm 5.0000"),
     ],
 )
 def test_bad_map_names_the_field(tmp_path, change, message):
     data = json.loads(json.dumps(HAND_MAP))
-    change(data["faces"][0])
+    change(data if "T_W_B" in message else data["faces"][0])
     path = tmp_path / "map.json"
     path.write_text(json.dumps(data))
     with pytest.raises(FormatError, match=message.replace("[", r"\[").replace("]", r"\]")):
@@ -91,6 +97,17 @@ def test_not_json(tmp_path):
         load_plane_map(path)
     with pytest.raises(InputError):
         load_plane_map(tmp_path / "missing.json")
+
+
+@pytest.mark.parametrize("text, message", [
+    ("[" * 100000 + "]" * 100000, "nested too deeply"),
+    ('{"version": ' + "9" * 5000 + "}", "Exceeds the limit"),
+])
+def test_json_python_will_not_read_is_a_format_error(tmp_path, text, message):
+    path = tmp_path / "map.json"
+    path.write_text(text)
+    with pytest.raises(FormatError, match=message):
+        load_plane_map(path)
 
 
 def _write_sequence(root, lines):
@@ -118,6 +135,9 @@ def test_sequence_loads(tmp_path):
         (dict(KF, index=1, T_S_C=[0, 0, 0, 0, 0, 0, 2]), "line 2: T_S_C"),
         (dict(KF, index=1, planes=[{"n": [0, 0, -1]}]), r"line 2: planes\[0\].d"),
         (dict(KF, index=0), "line 2: index"),
+        (dict(KF, index=1, stamp=0.0), "line 2: stamp: 0.0 does not follow 0.0"),
+        (dict(KF, index=1, stamp=0.1, planes=[dict(KF["planes"][0], polygon=[[0, 0, 2], [1, 0, 2]])]),
+         r"line 2: planes\[0\].polygon: a polygon has at least 3 points"),
         (dict(KF, index=1, planes=[dict(KF["planes"][0], cov=[[1, 0, 0], [0, -1, 0], [0, 0, 1]])]), "positive definite"),
     ],
 )

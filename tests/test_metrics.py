@@ -148,3 +148,17 @@ def test_ate_equals_evo_ape(tmp_path):
     _, est_read = read_tum(tmp_path / "est.tum")
     assert ate(est_read, gt_read) == pytest.approx(evo_rmse, abs=1e-6)
     assert evo_rmse > 0.01
+
+
+@pytest.mark.parametrize("line, message", [
+    ("1.0 0 0 nan 0 0 0 1", "line 2: tz is not a finite number"),
+    ("nan 0 0 0 0 0 0 1", "line 2: stamp is not a finite number"),
+    ("1.0 0 0 0 0 0 0 2", "line 2: quaternion has norm 2.0000, must be unit"),
+])
+def test_a_bad_tum_line_names_its_field(tmp_path, line, message):
+    from bimgraph.errors import FormatError
+    from bimgraph.sequence.tum import read_tum
+
+    (tmp_path / "t.tum").write_text("0.0 0 0 0 0 0 0 1\n" + line + "\n")
+    with pytest.raises(FormatError, match=message):
+        read_tum(tmp_path / "t.tum")

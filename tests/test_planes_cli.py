@@ -73,7 +73,7 @@ def test_planes_on_sequence_with_pinhole_options(tmp_path):
 
 def test_planes_errors(tmp_path):
     result = runner.invoke(app, ["planes", str(tmp_path)])
-    assert result.exit_code == 4 and "for a TUM RGB-D folder give --trajectory" in result.output
+    assert result.exit_code == 2 and "for a TUM RGB-D folder give --trajectory" in result.output
     result = runner.invoke(app, ["planes", str(tmp_path), "--fx", "500"])
     assert result.exit_code == 4 and "all four of --fx --fy --cx --cy" in result.output
     make_tum_folder(tmp_path, count=1)

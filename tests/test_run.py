@@ -16,7 +16,8 @@ from bimgraph.bim.planemap import save_plane_map
 from bimgraph.cli import app
 from bimgraph.config import BackendConfig, Config
 from bimgraph.evaluation.metrics import ate
-from bimgraph.evaluation.runs import run_summary
+from bimgraph.errors import InputError
+from bimgraph.evaluation.runs import load_estimate, run_summary
 from bimgraph.geometry import pose_to_tum
 from bimgraph.sequence.format import InitialAlignment, Sequence, SequenceMeta, load_sequence, save_sequence
 from bimgraph.sequence.tum import read_tum
@@ -179,6 +180,32 @@ def test_a_run_into_an_earlier_runs_folder_leaves_nothing_of_it_standing(world, 
     assert run(root, "-o", out).exit_code == 130
     assert json.loads((out / "summary.json").read_text())["keyframes"] == 20
     assert not any((out / name).exists() for name in ("deviations.json", "deviations.csv", "deviations.bcf", "metrics.json"))
+
+
+def test_a_run_that_stops_at_its_first_keyframe_leaves_nothing_of_an_earlier_one(world, tmp_path, monkeypatch):
+    """Made singular at its first keyframe, a run into an earlier run's folder has written
+    (almost) nothing: the earlier run's files must not stand beside it as if they were its own,
+    and `view` and `eval` of what it left say so in one line."""
+    _, root = world
+    out = tmp_path / "out"
+    assert run(root, "-o", out).exit_code == 0
+    (out / "metrics.json").write_text("{}")
+    process = Backend.process
+
+    def singular_at_0(self, kf):
+        if kf.index == 0:
+            raise RuntimeError("\nIndeterminate linear system detected while working near variable\n"
+                               "8646911284551352350 (Symbol: x0).\n\nThrown when a linear system is ill-posed.")
+        return process(self, kf)
+
+    monkeypatch.setattr(Backend, "process", singular_at_0)
+    assert_one_line_error(run(root, "-o", out), 5, "singular at keyframe 0")
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["finished"] is False and summary["keyframes"] == 0
+    assert sorted(p.name for p in out.iterdir()) == ["summary.json", "trajectory_bim.tum", "trajectory_slam.tum"]
+    assert_one_line_error(CliRunner().invoke(app, ["view", str(out), "--rrd", str(tmp_path / "x.rrd")]), 2, "no keyframe")
+    with pytest.raises(InputError, match="no keyframe"):
+        load_estimate(out)  # (what `eval` reads of a run)
 
 
 def test_singular_graph_mid_run_is_one_line_and_keeps_the_outputs(world, tmp_path, monkeypatch):

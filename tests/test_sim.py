@@ -361,13 +361,13 @@ def test_a_failed_simulation_leaves_no_folder_it_made(tmp_path, monkeypatch):
     half = tmp_path / "half.ifc"
     half.write_text("ISO-10303-21;\nHEADER;\nFILE_DESCRIPTION(('ViewDefinition [CoordinationView]'),'2;1');\n")
     result = CliRunner().invoke(app, ["simulate", "-o", str(tmp_path / "new" / "seq"), "--ifc", str(half)])
-    assert_one_line_error(result, 2, "half.ifc: truncated IFC file")
+    assert_one_line_error(result, 3, "half.ifc: truncated IFC file")
     assert not (tmp_path / "new").exists()
     kept = tmp_path / "kept"
     kept.mkdir()
     (kept / "notes.txt").write_text("mine")
     result = CliRunner().invoke(app, ["simulate", "-o", str(kept), "--ifc", str(half)])
-    assert result.exit_code == 2 and [p.name for p in kept.iterdir()] == ["notes.txt"]
+    assert result.exit_code == 3 and [p.name for p in kept.iterdir()] == ["notes.txt"]
 
     def stop(*args, **kwargs):
         raise KeyboardInterrupt

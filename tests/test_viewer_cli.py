@@ -109,6 +109,27 @@ def test_view_replays_the_outputs(online_run, seq_dir):
     (online_run / JSON_FILE).unlink()
 
 
+def test_a_view_that_fails_keeps_an_earlier_recording(online_run, tmp_path):
+    """Every file is read before the recording is written: a broken deviation report, found
+    after the keyframes were logged, had replaced an earlier recording with part of one."""
+    rrd = tmp_path / "x.rrd"
+    assert CliRunner().invoke(app, ["view", str(online_run), "--rrd", str(rrd)]).exit_code == 0
+    before = rrd.read_bytes()
+    (online_run / JSON_FILE).write_text("{")
+    try:
+        assert_one_line_error(CliRunner().invoke(app, ["view", str(online_run), "--rrd", str(rrd)]), 3, JSON_FILE)
+    finally:
+        (online_run / JSON_FILE).unlink()
+    assert rrd.read_bytes() == before
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="needs Linux's /proc, where no file can be made")
+def test_a_recording_that_cannot_be_written_is_one_line(online_run):
+    """(rerun's own error came as a traceback, with a warning of the data it dropped.)"""
+    result = CliRunner().invoke(app, ["view", str(online_run), "--rrd", "/proc/bimgraph.rrd"])
+    assert_one_line_error(result, 2, "/proc/bimgraph.rrd: cannot write the recording")
+
+
 def test_view_finds_the_sequence_the_run_names(online_run):
     result = CliRunner().invoke(app, ["view", str(online_run), "--rrd", str(online_run / "x.rrd")])
     assert result.exit_code == 0, result.output

@@ -15,7 +15,8 @@ from bimgraph.backend.graph import BatchSolver, singular_as_error
 from bimgraph.backend.offline import OfflineEstimator, run_offline
 from bimgraph.backend.online import Backend
 from bimgraph.backend.records import Listener, Results
-from bimgraph.backend.results import METRICS, OnlineWriter, write_results, write_summary
+from bimgraph.backend.results import (ASSOCIATIONS, EXTRINSIC, LANDMARKS, METRICS, SUMMARY, TRAJECTORY_BIM,
+                                      TRAJECTORY_SLAM, OnlineWriter, write_results, write_summary)
 from bimgraph.bim.planemap import PlaneMap, load_plane_map
 from bimgraph.config import Config
 from bimgraph.deviations.graph import observed_planes_isam2
@@ -114,20 +115,21 @@ def load_inputs(seq_dir: Path, bim: Path | None, cfg: Config) -> Inputs:
     model = model_path(seq_dir, meta, bim)
     plane_map = load_model(model, cfg)
     if not plane_map.faces:
-        raise InputError("the BIM model has no wall faces")
+        raise InputError(f"{model}: the BIM model has no wall faces")
     return Inputs(seq_dir, meta, model, plane_map, initial_alignment(meta, cfg))
 
 
-# what a run writes only once it has finished, and `bimgraph eval` of a run
-_END_OF_RUN_FILES = (*DEVIATION_FILES, METRICS)
+# every file a run writes, and `bimgraph eval`'s of it
+_RUN_FILES = (TRAJECTORY_BIM, TRAJECTORY_SLAM, EXTRINSIC, ASSOCIATIONS, LANDMARKS, SUMMARY, *DEVIATION_FILES, METRICS)
 
 
 def clear_previous_run(out_dir: Path) -> None:
-    """Remove what an earlier run into `out_dir` wrote at its end (its deviation report, its
-    evaluation), before this run writes there: a run that stops midway writes none of them,
-    and the earlier run's would stand beside it as if they were its own. (`out_dir` is a
-    folder: `run` made sure of it.)"""
-    _remove(out_dir, _END_OF_RUN_FILES)
+    """Remove what an earlier run wrote into `out_dir`, before this run writes there: one
+    that stops before it has written each of its files (its deviation report comes last; a
+    graph made singular at its first keyframe writes almost nothing) would otherwise leave
+    the earlier run's beside its own as if they were its own. (`out_dir` is a folder: `run`
+    made sure of it.)"""
+    _remove(out_dir, _RUN_FILES)
 
 
 def _remove(out_dir: Path, names) -> None:
@@ -164,9 +166,9 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
         hint = (f": detect them in its depth images first, with `bimgraph planes {seq_dir}`"
                 if any(kf.depth for kf in sequence.keyframes) else "")
         raise InputError(f"{seq_dir}: no keyframe has a plane detection{hint}")
-    ensure_folder(out_dir)  # (before the work, not after it)
     if seeds:
         initial = seed_alignment(sequence.keyframes, plane_map, list(seeds), cfg, initial)
+    ensure_folder(out_dir)  # (before the work, not after it; after everything the input can refuse)
     if mode == "offline":
         start = time.perf_counter()
         results = run_offline(sequence.keyframes, plane_map, cfg.backend, initial, listener, truth)

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from bimgraph.backend.landmarks import DIRECTION, KEPT, OUT, Landmark
 from bimgraph.backend.records import KeyframeResult, Results
@@ -68,6 +68,20 @@ class ExtrinsicFile(_File):
     sigma_trans_m: Sigma3
     unobservable: list[Unobservable]
     keyframe: Index | None
+
+    @field_validator("covariance")
+    @classmethod
+    def _a_covariance(cls, rows):
+        """Symmetric and positive semi-definite (where it has every number)."""
+        if any(v is None for row in rows for v in row):
+            return rows
+        m = np.asarray(rows, dtype=float)
+        scale = max(1.0, float(np.abs(m).max()))
+        if not np.allclose(m, m.T, atol=1e-9 * scale):
+            raise ValueError("covariance is not symmetric")
+        if np.linalg.eigvalsh(m).min() < -1e-9 * scale:
+            raise ValueError("covariance is not positive semi-definite")
+        return rows
 
 
 class AssociationRecord(_File):
@@ -259,9 +273,10 @@ class OnlineWriter:
             self.snapshot(backend, finished=False)
 
     def snapshot(self, backend, finished: bool, timings: dict | None = None) -> None:
-        if self.last is None:
-            return
         landmarks = backend.landmarks.current()
+        if self.last is None:  # (stopped at its first keyframe: a summary that says so, and nothing else)
+            write_json(self.out / SUMMARY, summary_record("online", timings or {}, [], 0, [], finished, inputs=self.inputs))
+            return
         backend.resolve_faces(self.last.T_B_S)
         write_json(self.out / EXTRINSIC, extrinsic_record(self.last.T_B_S, self._covariance(backend), backend.unobservable(),
                                                           self.last.index))

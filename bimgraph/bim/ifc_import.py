@@ -30,9 +30,9 @@ ORIGIN = ("the IfcBuilding's placement (its local coordinate system; the project
 
 def import_ifc(path, cfg: BimImportConfig, log=None):
     """Read the IFC model at `path` into a PlaneMap in frame B (see ORIGIN); returns
-    (plane_map, report) where report is a rich Table of counts and timing. Bad files raise
-    InputError; a wall (or slab) whose geometry fails or gives no face is reported through
-    `log` and skipped."""
+    (plane_map, report) where report is a rich Table of counts and timing. A file that is no
+    IFC or a damaged one raises FormatError, one without walls InputError; a wall (or slab)
+    whose geometry fails or gives no face is reported through `log` and skipped."""
     log = log or (lambda message: None)
     started = time.perf_counter()
     path = Path(path)

@@ -25,7 +25,7 @@ import shapely
 
 from bimgraph.bim import ifc_schema as schema
 from bimgraph.bim.faces import loop_normal
-from bimgraph.errors import InputError
+from bimgraph.errors import FormatError, InputError
 from bimgraph.geometry import inverse
 
 _END_MARK = b"END-ISO-10303-21;"
@@ -55,10 +55,10 @@ class Boundary:
 
 
 def open_model(path, log=None) -> ifcopenshell.file:
-    """Open an IFC file; a missing, non-IFC or truncated file, or one that names two entities
-    alike, is an InputError. What else the parser found wrong (a syntax error, a reference
-    to no entity) goes to `log`, one line each: past such an error the parser may have lost
-    entities, so the file is read, but not in silence."""
+    """Open an IFC file; a missing file is an InputError, a non-IFC or truncated one, or one
+    that names two entities alike, a FormatError. What else the parser found wrong (a syntax
+    error, a reference to no entity) goes to `log`, one line each: past such an error the
+    parser may have lost entities, so the file is read, but not in silence."""
     path = Path(path)
     log = log or (lambda message: None)
     if not path.is_file():
@@ -70,9 +70,9 @@ def open_model(path, log=None) -> ifcopenshell.file:
         tail = stream.read()
     bom = head.startswith(_BOM)
     if not head.lstrip(b"\xef\xbb\xbf \t\r\n").startswith(b"ISO-10303-21;"):  # a BOM is allowed
-        raise InputError(f"{path}: not an IFC file (no ISO-10303-21 header)")
+        raise FormatError(f"{path}: not an IFC file (no ISO-10303-21 header)")
     if _END_MARK not in tail:
-        raise InputError(f"{path}: truncated IFC file (no {_END_MARK.decode()} at its end)")
+        raise FormatError(f"{path}: truncated IFC file (no {_END_MARK.decode()} at its end)")
     wrapper.set_log_format_json()
     wrapper.get_log()  # (reading the parser's log empties it: what it holds next is this file's)
     try:
@@ -80,11 +80,11 @@ def open_model(path, log=None) -> ifcopenshell.file:
         model = ifcopenshell.file.from_string(path.read_bytes()[len(_BOM):].decode("utf-8", "replace")) if bom \
             else ifcopenshell.open(str(path))
     except Exception as err:  # ifcopenshell raises several unrelated types on bad files
-        raise InputError(f"{path}: cannot parse IFC ({str(err).splitlines()[0] if str(err) else type(err).__name__})") from None
+        raise FormatError(f"{path}: cannot parse IFC ({str(err).splitlines()[0] if str(err) else type(err).__name__})") from None
     problems = _parse_problems(wrapper.get_log())
     duplicates = [message for message in problems if message.startswith("Overwriting instance")]
     if duplicates:  # (the geometry kernel crashes on such a file)
-        raise InputError(f"{path}: two entities with one name ({duplicates[0]})")
+        raise FormatError(f"{path}: two entities with one name ({duplicates[0]})")
     for message in problems[:_MAX_PARSE_WARNINGS]:
         log(f"warning: {path.name}: {message}")
     if len(problems) > _MAX_PARSE_WARNINGS:

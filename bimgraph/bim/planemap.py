@@ -11,7 +11,7 @@ import json
 from collections.abc import Sequence
 from functools import cached_property
 from pathlib import Path
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
@@ -19,7 +19,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from bimgraph.errors import FormatError
 from bimgraph.files import read_json, write_atomic
 from bimgraph.geometry import plane_frame, plane_shape
-from bimgraph.validation import parse_model, require_unit
+from bimgraph.validation import Pose7, parse_model, require_unit
 
 FORMAT = "bimgraph.planemap"
 VERSION = 1
@@ -28,6 +28,8 @@ Vec3 = tuple[float, float, float]
 
 # A hand-written map is accepted if its points lie this close to the face's plane.
 _ON_PLANE_TOL_M = 0.01
+# A slab face's normal is at most about 25 degrees off the vertical.
+_SLAB_MIN_UP = 0.9
 
 
 class Space(BaseModel):
@@ -48,7 +50,7 @@ class BimFace(BaseModel):
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    id: str
+    id: str = Field(min_length=1)
     wall_guid: str
     wall_name: str = ""
     kind: Literal["wall", "slab_top", "slab_bottom"] = "wall"
@@ -57,7 +59,7 @@ class BimFace(BaseModel):
     normal: Vec3
     offset: float
     polygon: list[Vec3] = Field(min_length=3)
-    holes: list[list[Vec3]] = []
+    holes: list[Annotated[list[Vec3], Field(min_length=3)]] = []
     area: float | None = Field(default=None, gt=0)
     centre: Vec3 | None = None
     space: Space | None = None
@@ -75,12 +77,13 @@ class BimFace(BaseModel):
             dist = np.abs(np.asarray(ring) @ n + self.offset).max()
             if dist > _ON_PLANE_TOL_M:
                 raise ValueError(f"{name} lies up to {dist:.3f} m off the plane normal.x + offset = 0")
-        if self.area is None or self.centre is None:
-            area, centre = polygon_area_centre(self.polygon, self.holes, n)
-            if area <= 0:
-                raise ValueError("polygon has zero area")
-            self.area = self.area if self.area is not None else area
-            self.centre = self.centre if self.centre is not None else tuple(centre)
+        area, centre = polygon_area_centre(self.polygon, self.holes, n)
+        if area <= 0:  # (given an area, too: its corners in a line would break every use of it)
+            raise ValueError("polygon has zero area")
+        if self.kind != "wall" and abs(n[2]) < _SLAB_MIN_UP:
+            raise ValueError(f"a {self.kind} face must be horizontal, its normal is {self.normal}")
+        self.area = self.area if self.area is not None else area
+        self.centre = self.centre if self.centre is not None else tuple(centre)
         return self
 
     @property
@@ -114,7 +117,7 @@ class PlaneMap(BaseModel):
     origin: str = "as the author of the map chose: metres, z up"
     # Where B sits in the IFC file's world frame, so that results can go back into the model
     # (BCF viewpoints): [tx, ty, tz, qx, qy, qz, qw], metres; None when B is that frame.
-    T_W_B: tuple[float, float, float, float, float, float, float] | None = None
+    T_W_B: Pose7 | None = None
     faces: list[BimFace]
 
     @model_validator(mode="after")

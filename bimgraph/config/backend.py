@@ -10,23 +10,23 @@ from bimgraph.config.section import Section
 class NoiseConfig(Section):
     """Backend noise models (one sigma)."""
 
-    prior_first_pose_rot_deg: float = Field(0.001, gt=0, description="prior on the first keyframe pose: fixes the gauge of S (rotation)")
-    prior_first_pose_trans_m: float = Field(0.0001, gt=0, description="prior on the first keyframe pose: fixes the gauge of S (translation)")
-    odometry_rot_deg: float = Field(0.1, gt=0, description="front-end relative pose between keyframes when a keyframe has no cov (rotation)")
-    odometry_trans_m: float = Field(0.005, gt=0, description="front-end relative pose between keyframes when a keyframe has no cov (translation)")
-    plane_normal_deg: float = Field(1.0, gt=0, description="plane observation when it has no cov: normal")
-    plane_offset_m: float = Field(0.02, gt=0, description="plane observation when it has no cov: offset")
-    plane_min_normal_deg: float = Field(0.01, gt=0, description="a plane observation's covariance is floored at this normal sigma... (no sensor resolves a wall's plane finer; far overconfident covariances made iSAM2's system singular)")
-    plane_min_offset_m: float = Field(0.0001, gt=0, description="...and this offset sigma")
+    prior_first_pose_rot_deg: float = Field(0.001, gt=0, le=180, description="prior on the first keyframe pose: fixes the gauge of S (rotation)")
+    prior_first_pose_trans_m: float = Field(0.0001, gt=0, le=1000, description="prior on the first keyframe pose: fixes the gauge of S (translation)")
+    odometry_rot_deg: float = Field(0.1, gt=0, le=180, description="front-end relative pose between keyframes when a keyframe has no cov (rotation)")
+    odometry_trans_m: float = Field(0.005, gt=0, le=1000, description="front-end relative pose between keyframes when a keyframe has no cov (translation)")
+    plane_normal_deg: float = Field(1.0, gt=0, le=180, description="plane observation when it has no cov: normal")
+    plane_offset_m: float = Field(0.02, gt=0, le=1000, description="plane observation when it has no cov: offset")
+    plane_min_normal_deg: float = Field(0.01, gt=0, le=180, description="a plane observation's covariance is floored at this normal sigma... (no sensor resolves a wall's plane finer; far overconfident covariances made iSAM2's system singular)")
+    plane_min_offset_m: float = Field(0.0001, gt=0, le=1000, description="...and this offset sigma")
     plane_kernel: str = Field("huber", pattern="^(none|huber|cauchy)$", description="robust kernel on plane observations (none, huber, cauchy)")
     plane_kernel_width: float = Field(2.0, gt=0, description="kernel width of plane observations, in sigmas")
-    bim_normal_deg: float = Field(1.0, gt=0, description="plane-to-BIM factor: how far an as-built wall's normal strays from plan (a tilt about the face's centre)")
-    bim_offset_m: float = Field(0.01, gt=0, description="plane-to-BIM factor: how far an as-built wall's offset, at the face's centre, strays from plan (one sigma: the common +/-2 cm wall tolerance as a 95 % bound, so that the robust alignment keeps whole only walls within about 3.4 cm of plan; at 1.5 cm it kept walls built 3-5 cm off, which pulled the poses)")
+    bim_normal_deg: float = Field(1.0, gt=0, le=180, description="plane-to-BIM factor: how far an as-built wall's normal strays from plan (a tilt about the face's centre)")
+    bim_offset_m: float = Field(0.01, gt=0, le=1000, description="plane-to-BIM factor: how far an as-built wall's offset, at the face's centre, strays from plan (one sigma: the common +/-2 cm wall tolerance as a 95 % bound, so that the robust alignment keeps whole only walls within about 3.4 cm of plan; at 1.5 cm it kept walls built 3-5 cm off, which pulled the poses)")
     bim_kernel: str = Field("cauchy", pattern="^(none|huber|cauchy)$", description="robust kernel on plane-to-BIM factors until the robust alignment has judged them (offline; online with isam2.judge_every), Gaussian after (a Gaussian one before lets one wrong match move the extrinsic)")
     bim_kernel_width: float = Field(1.0, gt=0, description="kernel width of plane-to-BIM factors, in sigmas")
-    gravity_deg: float = Field(0.1, gt=0, description="gravity-aligned sequences: error of the front-end's up direction in every keyframe (attitude factors), and of T_B_S's tilt (S and B both have z up)")
-    extrinsic_rot_deg: float = Field(2.0, gt=0, description="prior on T_B_S when the sequence gives no initial alignment uncertainty (rotation)")
-    extrinsic_trans_m: float = Field(0.2, gt=0, description="prior on T_B_S when the sequence gives no initial alignment uncertainty (translation)")
+    gravity_deg: float = Field(0.1, gt=0, le=180, description="gravity-aligned sequences: error of the front-end's up direction in every keyframe (attitude factors), and of T_B_S's tilt (S and B both have z up)")
+    extrinsic_rot_deg: float = Field(2.0, gt=0, le=180, description="prior on T_B_S when the sequence gives no initial alignment uncertainty (rotation)")
+    extrinsic_trans_m: float = Field(0.2, gt=0, le=1000, description="prior on T_B_S when the sequence gives no initial alignment uncertainty (translation)")
 
 
 class SlamAssociationConfig(Section):

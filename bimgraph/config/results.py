@@ -25,7 +25,7 @@ class DeviationConfig(Section):
     unplanned_min_area_m2: float = Field(1.0, ge=0, description="unmatched landmarks at least this large are reported as unplanned")
     unplanned_vertical_only: bool = Field(True, description="only near-vertical unmatched planes count as unplanned (floors and ceilings are not walls)")
     vertical_tolerance_deg: float = Field(10.0, gt=0, description="a plane is vertical if its normal is within this of horizontal")
-    visibility_grid_m: float = Field(0.25, gt=0, description="spacing of the sample points on each face for the expected-in-view test")
+    visibility_grid_m: float = Field(0.25, ge=0.01, description="spacing of the sample points on each face for the expected-in-view test (at least 1 cm: finer costs memory by its inverse square and sees nothing more)")
     visibility_min_range_m: float = Field(0.3, ge=0, description="a face point is in view from this distance...")
     visibility_max_range_m: float = Field(5.0, gt=0, description="...up to this one...")
     visibility_max_obliquity_deg: float = Field(70.0, gt=0, le=90, description="...seen at most this obliquely...")

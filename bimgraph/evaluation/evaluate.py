@@ -36,6 +36,7 @@ class Estimate:
     T_B_S: np.ndarray
     associations: Mapping[tuple[int, int], str] | None = None
     cov_T_B_S: np.ndarray | None = None
+    stamps: np.ndarray | None = None  # of `T_B_C`, where read from a file
 
 
 def true_associations(keyframes: Sequence[Keyframe], gt: GroundTruth) -> dict[tuple[int, int], str | None]:

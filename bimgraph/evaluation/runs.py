@@ -29,10 +29,16 @@ def load_estimate(out_dir: Path) -> Estimate:
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
         raise InputError(f"{out_dir}: no such output folder")
-    _, T_B_C = read_tum(out_dir / TRAJECTORY_BIM)
+    stamps, T_B_C = read_tum(out_dir / TRAJECTORY_BIM)
+    if len(T_B_C) == 0:
+        raise InputError(f"{out_dir}: the run has no keyframe to evaluate (it stopped at its first)")
     extrinsic = load_extrinsic(out_dir / EXTRINSIC)
     associations = load_associations(out_dir / ASSOCIATIONS).face_of_observation()
-    return Estimate(list(T_B_C), pose_from_tum(extrinsic.T_B_S), associations, np.asarray(extrinsic.covariance))
+    return Estimate(list(T_B_C), pose_from_tum(extrinsic.T_B_S), associations, np.asarray(extrinsic.covariance), stamps)
+
+
+# (stamps are written with six decimals)
+_STAMP_TOL = 1e-5
 
 
 class Evaluation:
@@ -48,10 +54,19 @@ class Evaluation:
         self.manual = initial_alignment(self.sequence.meta, cfg)
 
     def metrics(self, estimate: Estimate, name: str = "the run") -> dict:
-        if len(estimate.T_B_C) != len(self.sequence.keyframes):
-            raise FormatError(f"{name} has {len(estimate.T_B_C)} poses for {len(self.sequence.keyframes)} keyframes "
+        keyframes = self.sequence.keyframes
+        if len(estimate.T_B_C) != len(keyframes):
+            raise FormatError(f"{name} has {len(estimate.T_B_C)} poses for {len(keyframes)} keyframes "
                               "(an unfinished online run?)")
-        return evaluate(estimate, self.sequence.keyframes, self.gt, self.plane_map)
+        if estimate.stamps is not None and np.abs(estimate.stamps - [kf.stamp for kf in keyframes]).max() > _STAMP_TOL:
+            raise FormatError(f"{name}: its trajectory's stamps are not those of {self.sequence.root}'s keyframes")
+        observed = {(kf.index, i) for kf in keyframes for i in range(len(kf.planes))}
+        for (k, i), face in (estimate.associations or {}).items():
+            if (k, i) not in observed:
+                raise FormatError(f"{name}: associations name plane {i} of keyframe {k}, which {self.sequence.root} does not have")
+            if face is not None and face not in self.plane_map.index:
+                raise FormatError(f"{name}: associations name face {face!r}, which the plane map does not have")
+        return evaluate(estimate, keyframes, self.gt, self.plane_map)
 
     def truth(self) -> Estimate:
         """The ground truth as if it were a method: its wall errors are the floor that the

@@ -133,7 +133,7 @@ def open_input(folder: Path, trajectory: Path | None = None, intrinsics: Path | 
         camera = resolve_camera(None, camera_file, pinhole, folder / names[0] if names else None)
         return load_tum_rgbd(folder, trajectory, camera, max_dt=max_dt), camera
     if not (folder / META_FILE).is_file():
-        raise ConfigError(f"{folder}: no {META_FILE}; for a TUM RGB-D folder give --trajectory")
+        raise InputError(f"{folder}: no {META_FILE}; for a TUM RGB-D folder give --trajectory")
     seq = load_sequence(folder)
     first = next((folder / kf.depth for kf in seq.keyframes if kf.depth), None)
     return seq, resolve_camera(seq, camera_file, pinhole, first)

@@ -16,7 +16,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from bimgraph.errors import FormatError, InputError
-from bimgraph.files import read_json, write_atomic, write_json
+from bimgraph.files import parse_json, read_json, write_atomic, write_json
 from bimgraph.geometry import pose_from_tum
 from bimgraph.validation import Pose7, parse_model, require_unit
 
@@ -64,8 +64,8 @@ class InitialAlignment(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     T_B_S: Pose7
-    sigma_rot_deg: float = Field(default=2.0, gt=0)
-    sigma_trans_m: float = Field(default=0.2, gt=0)
+    sigma_rot_deg: float = Field(default=2.0, gt=0, le=180)
+    sigma_trans_m: float = Field(default=0.2, gt=0, le=1000)
 
 
 class PlaneObservation(BaseModel):
@@ -94,6 +94,13 @@ class PlaneObservation(BaseModel):
     @classmethod
     def _cov(cls, cov):
         return _check_square_psd(cov, 3)
+
+    @field_validator("polygon")
+    @classmethod
+    def _polygon(cls, polygon):
+        if polygon and len(polygon) < 3:
+            raise ValueError(f"a polygon has at least 3 points, not {len(polygon)} (or none: [] or null)")
+        return polygon
 
     @property
     def plane(self) -> np.ndarray:
@@ -174,13 +181,11 @@ def iter_keyframes(root: Path):
             if not line.strip():
                 continue
             where = f"{path}: line {lineno}"
-            try:
-                data = json.loads(line)
-            except json.JSONDecodeError as err:
-                raise FormatError(f"{where}: invalid JSON ({err.msg})") from None
-            kf = parse_model(Keyframe, data, where)
+            kf = parse_model(Keyframe, parse_json(line, where), where)
             if previous is not None and kf.index <= previous.index:
                 raise FormatError(f"{where}: index: {kf.index} does not follow {previous.index}")
+            if previous is not None and kf.stamp <= previous.stamp:  # (the outputs are trajectories in time)
+                raise FormatError(f"{where}: stamp: {kf.stamp} does not follow {previous.stamp}")
             previous = kf
             yield kf
 

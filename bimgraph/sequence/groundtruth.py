@@ -21,7 +21,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from bimgraph.errors import FormatError, InputError
-from bimgraph.files import read_json, read_text, write_atomic, write_json
+from bimgraph.files import parse_json, read_json, read_text, write_atomic, write_json
 from bimgraph.geometry import pose_from_tum, pose_to_tum
 from bimgraph.sequence.tum import read_tum, write_tum
 from bimgraph.validation import Pose7, parse_model
@@ -111,10 +111,7 @@ def _read_jsonl(path: Path, model: type[BaseModel]) -> list[dict]:
     for lineno, line in enumerate(read_text(path).splitlines(), start=1):
         if not line.strip():
             continue
-        try:
-            record = json.loads(line)
-        except json.JSONDecodeError as err:
-            raise FormatError(f"{path}: line {lineno}: invalid JSON ({err.msg})") from None
+        record = parse_json(line, f"{path}: line {lineno}")
         parse_model(model, record, f"{path}: line {lineno}")
         records.append(record)
     return records

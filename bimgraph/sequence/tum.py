@@ -46,8 +46,11 @@ def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
             values = [float(f) for f in fields]
         except ValueError:
             raise FormatError(f"{path}: line {lineno}: not a number") from None
+        if not np.all(np.isfinite(values)):
+            name = ("stamp", "tx", "ty", "tz", "qx", "qy", "qz", "qw")[int(np.flatnonzero(~np.isfinite(values))[0])]
+            raise FormatError(f"{path}: line {lineno}: {name} is not a finite number")
         q_norm = np.linalg.norm(values[4:8])
-        if not np.all(np.isfinite(values)) or abs(q_norm - 1.0) > 1e-3:
+        if abs(q_norm - 1.0) > 1e-3:
             raise FormatError(f"{path}: line {lineno}: quaternion has norm {q_norm:.4f}, must be unit")
         stamps.append(values[0])
         poses.append(pose_from_tum(values[1:]))

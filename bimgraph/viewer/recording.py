@@ -25,6 +25,19 @@ def check_viewer_can_open() -> None:
                           "or save the recording with --rrd FILE")
 
 
+def _check_writable(path: Path) -> None:
+    """An InputError if `path` cannot be written, found before the recording is made (rerun's
+    own error would come with its buffer's warnings); an existing file is left as it is."""
+    existed = path.exists()
+    try:
+        with open(path, "ab"):
+            pass
+    except OSError as err:
+        raise InputError(f"{path}: cannot write the recording ({err.strerror})") from None
+    if not existed:
+        path.unlink(missing_ok=True)
+
+
 def open_recording(rrd: Path | None = None, spawn: bool = False, camera: Camera | None = None,
                    application_id: str = "bimgraph"):
     """A recording stream saving to `rrd`, streaming to a newly spawned viewer, or both;
@@ -39,11 +52,15 @@ def open_recording(rrd: Path | None = None, spawn: bool = False, camera: Camera 
         if Path(rrd).is_dir():
             raise InputError(f"{rrd}: is a folder, not a recording file")
         ensure_folder(Path(rrd).parent, rrd)
-    if rrd is not None and spawn:
-        recording.spawn(connect=False)
-        recording.set_sinks(rr.GrpcSink(), rr.FileSink(str(rrd)), default_blueprint=blueprint)
-    elif rrd is not None:
-        recording.save(rrd, default_blueprint=blueprint)
-    elif spawn:
-        recording.spawn(default_blueprint=blueprint)
+        _check_writable(Path(rrd))
+    try:
+        if rrd is not None and spawn:
+            recording.spawn(connect=False)
+            recording.set_sinks(rr.GrpcSink(), rr.FileSink(str(rrd)), default_blueprint=blueprint)
+        elif rrd is not None:
+            recording.save(rrd, default_blueprint=blueprint)
+        elif spawn:
+            recording.spawn(default_blueprint=blueprint)
+    except RuntimeError as err:  # (rerun's, e.g. a file it cannot create)
+        raise InputError(f"{rrd}: cannot write the recording ({str(err).splitlines()[0]})") from None
     return recording

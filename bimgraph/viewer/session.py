@@ -42,13 +42,20 @@ def open_viewer(seq_dir: Path, meta: SequenceMeta, plane_map: PlaneMap, T_B_S_in
                        T_B_C_truth=T_B_C_truth, T_B_S_truth=T_B_S_truth, config=cfg.viewer)
 
 
-def finish(viewer: RerunViewer, out_dir: Path) -> None:
-    """Colour the deviating faces if the run wrote a deviation report, and close."""
+def deviation_statuses(out_dir: Path) -> dict[str, str] | None:
+    """Each face's status in the run's deviation report, None if it wrote none."""
     from bimgraph.deviations.report import JSON_FILE, load_deviations
 
     path = Path(out_dir) / JSON_FILE
-    if path.is_file():
-        mark_deviations(viewer, {f.face_id: f.status for f in load_deviations(path).faces})
+    return {f.face_id: f.status for f in load_deviations(path).faces} if path.is_file() else None
+
+
+def finish(viewer: RerunViewer, out_dir: Path, statuses: dict[str, str] | None = None) -> None:
+    """Colour the deviating faces if the run wrote a deviation report (`statuses`, if read
+    already), and close."""
+    statuses = deviation_statuses(out_dir) if statuses is None else statuses
+    if statuses is not None:
+        mark_deviations(viewer, statuses)
     viewer.close()
 
 
@@ -75,12 +82,15 @@ def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | N
     plane_map = load_model(model_path(seq.root, seq.meta, bim), cfg)
     stamps, T_B_C = read_tum(out_dir / TRAJECTORY_BIM)
     stamps_slam, T_S_C = read_tum(out_dir / TRAJECTORY_SLAM)
+    if len(stamps) == 0:
+        raise InputError(f"{out_dir}: the run has no keyframe to show (it stopped at its first)")
     if len(stamps_slam) != len(stamps):
         raise FormatError(f"{out_dir}: {TRAJECTORY_BIM} has {len(stamps)} poses, {TRAJECTORY_SLAM} {len(stamps_slam)}")
     keyframes = seq.keyframes[:len(stamps)]  # an interrupted online run covers a prefix
     if len(stamps) > len(seq.keyframes) or np.abs(np.array([kf.stamp for kf in keyframes]) - stamps).max() > _STAMP_TOL:
         raise InputError(f"{out_dir}: its trajectory's stamps are not those of {seq.root}'s keyframes")
     faces = load_associations(out_dir / ASSOCIATIONS).face_of_observation()
+    statuses = deviation_statuses(out_dir)  # (every file read before the recording is written)
 
     viewer = open_viewer(seq.root, seq.meta, plane_map, initial_alignment(seq.meta, cfg).T_B_S, cfg, rrd, spawn)
     for kf, T_B_C_k, T_S_C_k in zip(keyframes, T_B_C, T_S_C):
@@ -88,7 +98,7 @@ def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | N
         viewer.keyframe(kf.index, kf.stamp, T_S_C=kf.pose, T_B_C=T_B_C_k, T_B_S=T_B_C_k @ inverse(T_S_C_k),
                         planes=kf.planes, plane_faces=[faces.get((kf.index, i)) for i in range(len(kf.planes))],
                         depth=depth)
-    finish(viewer, out_dir)
+    finish(viewer, out_dir, statuses)
     return len(keyframes)
 
 

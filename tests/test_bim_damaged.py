@@ -60,6 +60,12 @@ def test_a_syntax_error_is_warned_about_not_lost_in_silence(house_text, tmp_path
     assert warnings and all(w.startswith("warning: m.ifc: ") for w in warnings[:5])
 
 
+def test_a_file_damaged_beyond_its_walls_says_so_in_its_one_line(house_text, tmp_path):
+    (tmp_path / "m.ifc").write_text(house_text.replace("IFCWALL(", "IFCWALX("))
+    result = CliRunner().invoke(app, ["bim", str(tmp_path / "m.ifc"), "-o", str(tmp_path / "planes.json")])
+    assert_one_line_error(result, 2, "no walls", "the file is damaged", "IFCWALX")
+
+
 def test_two_entities_of_one_name_are_one_line(house_text, tmp_path):
     """(The geometry kernel would crash on such a file.)"""
     name = entity(house_text, "IFCWALL").split("=")[0]

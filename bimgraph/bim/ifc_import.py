@@ -24,6 +24,9 @@ from bimgraph.config import BimImportConfig
 from bimgraph.errors import InputError
 from bimgraph.geometry import pose_to_tum
 
+# the parser's problems with a file listed one by one; the rest counted
+_PARSE_WARNINGS = 5
+
 ORIGIN = ("the IfcBuilding's placement (its local coordinate system; the project's world "
           "coordinate system if there is no IfcBuilding), metres, z up")
 
@@ -36,10 +39,15 @@ def import_ifc(path, cfg: BimImportConfig, log=None):
     log = log or (lambda message: None)
     started = time.perf_counter()
     path = Path(path)
-    model = open_model(path, log)
+    model, problems = open_model(path)
     walls = model.by_type("IfcWall")
     if not walls:
-        raise InputError(f"{path}: the model has no walls (IfcWall)")
+        damaged = f"; the file is damaged ({len(problems)} problems, the first: {problems[0]})" if problems else ""
+        raise InputError(f"{path}: the model has no walls (IfcWall){damaged}")
+    for message in problems[:_PARSE_WARNINGS]:
+        log(f"warning: {path.name}: {message}")
+    if len(problems) > _PARSE_WARNINGS:
+        log(f"warning: {path.name}: {len(problems) - _PARSE_WARNINGS} more problems of the file's syntax")
     try:
         reader = ModelReader(model, cfg.threads)
     except (InputError, AttributeError, ValueError) as err:  # (a cycle, a reference to no entity, no axes)

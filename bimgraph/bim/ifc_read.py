@@ -30,7 +30,6 @@ from bimgraph.geometry import inverse
 
 _END_MARK = b"END-ISO-10303-21;"
 _BOM = b"\xef\xbb\xbf"
-_MAX_PARSE_WARNINGS = 5
 
 
 @dataclass
@@ -54,13 +53,12 @@ class Boundary:
         self.normal = loop_normal(self.points)
 
 
-def open_model(path, log=None) -> ifcopenshell.file:
-    """Open an IFC file; a missing file is an InputError, a non-IFC or truncated one, or one
-    that names two entities alike, a FormatError. What else the parser found wrong (a syntax
-    error, a reference to no entity) goes to `log`, one line each: past such an error the
-    parser may have lost entities, so the file is read, but not in silence."""
+def open_model(path) -> tuple[ifcopenshell.file, list[str]]:
+    """Open an IFC file: the model, and what the parser found wrong in it (a syntax error, a
+    reference to no entity: past such an error it may have lost entities, so the caller must
+    not read the model in silence). A missing file is an InputError, a non-IFC or truncated
+    one, or one that names two entities alike, a FormatError."""
     path = Path(path)
-    log = log or (lambda message: None)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     with open(path, "rb") as stream:
@@ -85,11 +83,7 @@ def open_model(path, log=None) -> ifcopenshell.file:
     duplicates = [message for message in problems if message.startswith("Overwriting instance")]
     if duplicates:  # (the geometry kernel crashes on such a file)
         raise FormatError(f"{path}: two entities with one name ({duplicates[0]})")
-    for message in problems[:_MAX_PARSE_WARNINGS]:
-        log(f"warning: {path.name}: {message}")
-    if len(problems) > _MAX_PARSE_WARNINGS:
-        log(f"warning: {path.name}: {len(problems) - _MAX_PARSE_WARNINGS} more problems of the file's syntax")
-    return model
+    return model, problems
 
 
 def _parse_problems(log_text: str) -> list[str]:

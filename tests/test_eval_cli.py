@@ -73,15 +73,21 @@ def _set(key, value):
 ])
 def test_a_malformed_run_output_is_one_line_exit_3(finished_run, tmp_path, name, change, message):
     """extrinsic.json with 8 numbers or NaN in T_B_S was accepted; {"associations": 5} a TypeError."""
+    result, run = eval_changed(finished_run, tmp_path, name, change)
+    assert_one_line_error(result, 3, f"{run / name}: {message}")
+    assert not (run / "metrics.json").exists()
+
+
+def eval_changed(finished_run, tmp_path, name, change):
+    """`bimgraph eval` of a copy of the run whose file `name` (JSON) `change` edited: the
+    result and the copy."""
     seq, out = finished_run
     run = tmp_path / "run"
     shutil.copytree(out, run)
     data = json.loads((run / name).read_text())
     change(data)
     (run / name).write_text(json.dumps(data))
-    result = CliRunner().invoke(app, ["eval", str(run), "--gt", str(seq), "--no-baselines"])
-    assert_one_line_error(result, 3, f"{run / name}: {message}")
-    assert not (run / "metrics.json").exists()
+    return CliRunner().invoke(app, ["eval", str(run), "--gt", str(seq), "--no-baselines"]), run
 
 
 def test_malformed_ground_truth_is_one_line_exit_3(finished_run, tmp_path):
@@ -123,13 +129,7 @@ def test_a_run_of_another_length_is_named_and_no_metrics_are_written(finished_ru
 ])
 def test_associations_of_another_sequence_are_one_line(finished_run, tmp_path, change, message):
     """They were counted as wrong matches, lowering the precision."""
-    seq, out = finished_run
-    run = tmp_path / "run"
-    shutil.copytree(out, run)
-    data = json.loads((run / "associations.json").read_text())
-    change(data)
-    (run / "associations.json").write_text(json.dumps(data))
-    result = CliRunner().invoke(app, ["eval", str(run), "--gt", str(seq), "--no-baselines"])
+    result, run = eval_changed(finished_run, tmp_path, "associations.json", change)
     assert_one_line_error(result, 3, f"{run}: {message}")
     assert not (run / "metrics.json").exists()
 

@@ -182,6 +182,19 @@ def test_a_run_into_an_earlier_runs_folder_leaves_nothing_of_it_standing(world, 
     assert not any((out / name).exists() for name in ("deviations.json", "deviations.csv", "deviations.bcf", "metrics.json"))
 
 
+def singular_at(monkeypatch, k: int) -> None:
+    """gtsam finds the system singular at keyframe k (as far overconfident covariances made it)."""
+    process = Backend.process
+
+    def singular(self, kf):
+        if kf.index == k:
+            raise RuntimeError("\nIndeterminate linear system detected while working near variable\n"
+                               f"8646911284551352350 (Symbol: x{k}).\n\nThrown when a linear system is ill-posed.")
+        return process(self, kf)
+
+    monkeypatch.setattr(Backend, "process", singular)
+
+
 def test_a_run_that_stops_at_its_first_keyframe_leaves_nothing_of_an_earlier_one(world, tmp_path, monkeypatch):
     """Made singular at its first keyframe, a run into an earlier run's folder has written
     (almost) nothing: the earlier run's files must not stand beside it as if they were its own,
@@ -190,15 +203,7 @@ def test_a_run_that_stops_at_its_first_keyframe_leaves_nothing_of_an_earlier_one
     out = tmp_path / "out"
     assert run(root, "-o", out).exit_code == 0
     (out / "metrics.json").write_text("{}")
-    process = Backend.process
-
-    def singular_at_0(self, kf):
-        if kf.index == 0:
-            raise RuntimeError("\nIndeterminate linear system detected while working near variable\n"
-                               "8646911284551352350 (Symbol: x0).\n\nThrown when a linear system is ill-posed.")
-        return process(self, kf)
-
-    monkeypatch.setattr(Backend, "process", singular_at_0)
+    singular_at(monkeypatch, 0)
     assert_one_line_error(run(root, "-o", out), 5, "singular at keyframe 0")
     summary = json.loads((out / "summary.json").read_text())
     assert summary["finished"] is False and summary["keyframes"] == 0
@@ -212,15 +217,7 @@ def test_singular_graph_mid_run_is_one_line_and_keeps_the_outputs(world, tmp_pat
     """gtsam finding the system singular (as far overconfident covariances made it) ends the
     run with exit code 5 and a line naming the keyframe; the outputs so far stay valid."""
     _, root = world
-    process = Backend.process
-
-    def singular_at_30(self, kf):
-        if kf.index == 30:
-            raise RuntimeError("\nIndeterminate linear system detected while working near variable\n"
-                               "8646911284551352350 (Symbol: x30).\n\nThrown when a linear system is ill-posed.")
-        return process(self, kf)
-
-    monkeypatch.setattr(Backend, "process", singular_at_30)
+    singular_at(monkeypatch, 30)
     out = tmp_path / "out"
     result = run(root, "-o", out)
     assert result.exit_code == 5

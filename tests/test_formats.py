@@ -77,6 +77,7 @@ def test_face_moved_to_another_plane():
         # corners in a line: no area, whatever area the file gives it
         (lambda f: f.update(polygon=[[0, 5, 0], [1, 5, 0], [2, 5, 0]], area=1.0), "faces[0]: polygon has zero area"),
         (lambda f: f.update(id=""), "faces[0].id: String should have at least 1 character"),
+        (lambda f: f.update(centre=[100, 5, 100]), "faces[0]: centre .* is not on the face"),
         (lambda f: f.update(kind="slab_top"), "faces[0]: a slab_top face must be horizontal"),
         (lambda data: data.update(T_W_B=[0, 0, 0, 0, 0, 0, 5]), "T_W_B: quaternion has norm 5.0000"),
     ],

@@ -82,6 +82,12 @@ class BimFace(BaseModel):
             raise ValueError("polygon has zero area")
         if self.kind != "wall" and abs(n[2]) < _SLAB_MIN_UP:
             raise ValueError(f"a {self.kind} face must be horizontal, its normal is {self.normal}")
+        if self.centre is not None:
+            given = np.asarray(self.centre)
+            corners = np.asarray(self.polygon)
+            if abs(given @ n + self.offset) > _ON_PLANE_TOL_M or (given < corners.min(axis=0) - _ON_PLANE_TOL_M).any() \
+                    or (given > corners.max(axis=0) + _ON_PLANE_TOL_M).any():
+                raise ValueError(f"centre {self.centre} is not on the face (its plane, within its polygon's bounds)")
         self.area = self.area if self.area is not None else area
         self.centre = self.centre if self.centre is not None else tuple(centre)
         return self

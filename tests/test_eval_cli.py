@@ -144,3 +144,18 @@ def test_a_trajectory_of_other_stamps_is_one_line(finished_run, tmp_path):
     (run / "trajectory_bim.tum").write_text("\n".join(lines) + "\n")
     result = CliRunner().invoke(app, ["eval", str(run), "--gt", str(seq), "--no-baselines"])
     assert_one_line_error(result, 3, "stamps are not those of")
+
+
+def test_ground_truth_of_other_planes_is_one_line(finished_run, tmp_path):
+    """Its association precision and recall counted the wrong planes."""
+    seq, out = finished_run
+    copy = tmp_path / "seq"
+    shutil.copytree(seq, copy)
+    path = copy / "groundtruth" / "observations.jsonl"
+    lines = path.read_text().splitlines()
+    record = json.loads(lines[3])
+    record["planes"] = record["planes"][1:]
+    lines[3] = json.dumps(record)
+    path.write_text("\n".join(lines) + "\n")
+    result = CliRunner().invoke(app, ["eval", str(out), "--gt", str(copy), "--no-baselines"])
+    assert_one_line_error(result, 3, "observations.jsonl has", f"planes for keyframe {record['index']}")

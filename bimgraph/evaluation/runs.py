@@ -50,6 +50,10 @@ class Evaluation:
         self.gt: GroundTruth = load_groundtruth(seq_dir)
         if len(self.gt.T_B_C) != len(self.sequence.keyframes):
             raise FormatError(f"{seq_dir}: ground truth has {len(self.gt.T_B_C)} poses for {len(self.sequence.keyframes)} keyframes")
+        for kf, truths in zip(self.sequence.keyframes, self.gt.observations):
+            if len(truths) != len(kf.planes):  # (the association's precision and recall would count the wrong planes)
+                raise FormatError(f"{seq_dir}: groundtruth/observations.jsonl has {len(truths)} planes for keyframe {kf.index}, "
+                                  f"keyframes.jsonl {len(kf.planes)}")
         self.plane_map = load_model(model_path(seq_dir, self.sequence.meta, None), cfg)
         self.manual = initial_alignment(self.sequence.meta, cfg)
 

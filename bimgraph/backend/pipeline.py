@@ -169,10 +169,10 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
     if seeds:
         initial = seed_alignment(sequence.keyframes, plane_map, list(seeds), cfg, initial)
     ensure_folder(out_dir)  # (before the work, not after it; after everything the input can refuse)
+    clear_previous_run(out_dir)
     if mode == "offline":
         start = time.perf_counter()
         results = run_offline(sequence.keyframes, plane_map, cfg.backend, initial, listener, truth)
-        clear_previous_run(out_dir)
         # as online: every other output first, `finished` once the report is written too
         write_results(out_dir, results, named, finished=False)
         report_start = time.perf_counter()
@@ -184,7 +184,6 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
     # the extrinsic's covariance per keyframe only for a listener (the viewer plots it); the
     # writer asks for it when it writes
     backend = Backend(plane_map, cfg.backend, initial, listener, truth, covariance=listener is not None)
-    clear_previous_run(out_dir)
     writer = OnlineWriter(out_dir, cfg.backend.write_every, named)
     start = time.perf_counter()
     try:

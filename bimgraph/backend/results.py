@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from bimgraph.backend.landmarks import DIRECTION, KEPT, OUT, Landmark
 from bimgraph.backend.records import KeyframeResult, Results
+from bimgraph.errors import InputError
 from bimgraph.files import ensure_folder, read_json, write_json
 from bimgraph.geometry import plane_from_frame, pose_to_tum
 from bimgraph.sequence.format import Vec3
@@ -309,6 +310,18 @@ class OnlineWriter:
     def close(self) -> None:
         self.bim.close()
         self.slam.close()
+
+
+# (stamps are written with six decimals)
+_STAMP_TOL = 1e-5
+
+
+def check_stamps(run: str, stamps: np.ndarray, keyframes, seq_root) -> None:
+    """A run's trajectory `stamps` must be those of the first of a sequence's `keyframes` (an
+    unfinished online run covers a prefix): else it is another sequence's run, an InputError."""
+    if len(stamps) > len(keyframes) or \
+            np.abs(np.array([kf.stamp for kf in keyframes[:len(stamps)]]) - np.asarray(stamps)).max(initial=0.0) > _STAMP_TOL:
+        raise InputError(f"{run}: its trajectory's stamps are not those of {seq_root}'s keyframes")
 
 
 def write_results(out_dir: Path, results: Results, inputs: dict | None = None, finished: bool = True) -> None:

@@ -21,7 +21,7 @@ from bimgraph.bim.ifc_read import ModelReader, open_model
 from bimgraph.bim.planemap import BimFace, PlaneMap, Space
 from bimgraph.bim.rooms import Claim, Junctions, Rooms, boundary_claims, split_at, split_face
 from bimgraph.config import BimImportConfig
-from bimgraph.errors import InputError
+from bimgraph.errors import FormatError, InputError
 from bimgraph.geometry import pose_to_tum
 
 # the parser's problems with a file listed one by one; the rest counted
@@ -34,16 +34,18 @@ ORIGIN = ("the IfcBuilding's placement (its local coordinate system; the project
 def import_ifc(path, cfg: BimImportConfig, log=None):
     """Read the IFC model at `path` into a PlaneMap in frame B (see ORIGIN); returns
     (plane_map, report) where report is a rich Table of counts and timing. A file that is no
-    IFC or a damaged one raises FormatError, one without walls InputError; a wall (or slab)
-    whose geometry fails or gives no face is reported through `log` and skipped."""
+    IFC or a damaged one raises FormatError, a sound one without walls InputError; a wall (or
+    slab) whose geometry fails or gives no face is reported through `log` and skipped."""
     log = log or (lambda message: None)
     started = time.perf_counter()
     path = Path(path)
     model, problems = open_model(path)
     walls = model.by_type("IfcWall")
     if not walls:
-        damaged = f"; the file is damaged ({len(problems)} problems, the first: {problems[0]})" if problems else ""
-        raise InputError(f"{path}: the model has no walls (IfcWall){damaged}")
+        if problems:  # (lost to the damage, most likely)
+            raise FormatError(f"{path}: the model has no walls (IfcWall); the file is damaged "
+                              f"({len(problems)} problems, the first: {problems[0]})")
+        raise InputError(f"{path}: the model has no walls (IfcWall)")
     for message in problems[:_PARSE_WARNINGS]:
         log(f"warning: {path.name}: {message}")
     if len(problems) > _PARSE_WARNINGS:
@@ -51,12 +53,16 @@ def import_ifc(path, cfg: BimImportConfig, log=None):
     try:
         reader = ModelReader(model, cfg.threads)
     except (InputError, AttributeError, ValueError) as err:  # (a cycle, a reference to no entity, no axes)
-        raise InputError(f"{path}: the building's placement cannot be read ({err})") from None
+        raise FormatError(f"{path}: the building's placement cannot be read ({err})") from None
     voids = {wall.id(): [rel.RelatedOpeningElement for rel in wall.HasOpenings if rel.RelatedOpeningElement is not None]
              for wall in walls}
     spaces = model.by_type("IfcSpace")
     meshes, solids = reader.meshes_and_solids(walls, [o for os in voids.values() for o in os] + list(spaces))
-    skipped = {"walls skipped (no geometry)": _skip(log, "wall", [w for w in walls if w.id() not in meshes], "no geometry")}
+    skipped = {"walls skipped (no geometry)": sum(_skip(log, "wall", [w], reader.unreadable.get(w.id(), "no geometry"))
+                                                   for w in walls if w.id() not in meshes)}
+    if reader.kernel_fallbacks:
+        log(f"warning: {len(reader.kernel_fallbacks)} bodies read by the geometry kernel, the schema reader failing on them "
+            f"(the first: {reader.kernel_fallbacks[0]})")
     curtain_walls = model.by_type("IfcCurtainWall")
     for wall in curtain_walls:
         log(f"warning: curtain wall {wall.GlobalId} ({wall.Name}): not imported")

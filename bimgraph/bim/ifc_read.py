@@ -115,6 +115,8 @@ class ModelReader:
         self._storeys = {}  # element id -> (storey name, elevation)
         self._storey_rows = {}  # storey id -> (name, elevation)
         self.unread_boundaries = 0  # space boundaries whose geometry `boundaries` could not read
+        self.unreadable: dict[int, str] = {}  # element id -> why its geometry cannot be read at all
+        self.kernel_fallbacks: list[str] = []  # bodies the schema reader failed on, left to the kernel
         self.settings = {}
         for subtract in (False, True):
             self.settings[subtract] = ifcopenshell.geom.settings()
@@ -179,11 +181,12 @@ class ModelReader:
 
     def _placeable(self, element) -> bool:
         """Whether the element's placement can be read (it is in no cycle, references no
-        missing entity)."""
+        missing entity); why not goes to `unreadable`."""
         try:
             self.placement(element)
             return True
-        except Exception:
+        except Exception as err:
+            self.unreadable[element.id()] = f"its placement cannot be read ({err})"
             return False
 
     def storey(self, element) -> tuple[str, float]:
@@ -240,10 +243,12 @@ class ModelReader:
         for element in [*elements, *solids]:
             try:
                 parts = self._built(element)
-            except InputError:  # a placement cycle, on which the geometry kernel would crash
+            except InputError as err:  # a placement cycle, on which the geometry kernel would crash
+                self.unreadable[element.id()] = str(err)
                 continue
-            except Exception:  # a body the schema reader cannot follow (a broken reference, a
-                parts = None   # degenerate loop): the geometry kernel judges it, and warns
+            except Exception as err:  # a body the schema reader cannot follow (a broken reference, a
+                parts = None          # degenerate loop): the geometry kernel has its go at it
+                self.kernel_fallbacks.append(f"{element.GlobalId} ({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})")
             if parts is None:
                 others.append(element)
             else:

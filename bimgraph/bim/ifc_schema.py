@@ -39,26 +39,17 @@ def _a2p(spelling: str, location: tuple, axis: tuple | None, ref: tuple | None) 
     # IFC allows a RefDirection that is not perpendicular to the Axis: its projection onto the
     # plane across the axis is the x axis (as geometry kernels take it), so the frame is rigid.
     # An Axis without one breaks IFC's rule that both or neither be given: x is then what
-    # ifcopenshell's kernel takes (OpenCASCADE's gp_Ax2 from a normal), so that a body read
-    # here and one the kernel reads in the same file agree
-    x = np.array(ref, dtype=float) if ref else _perpendicular(z) if axis else np.array([1.0, 0.0, 0.0])
+    # ifcopenshell's kernel takes, (1, 0, 0) projected, or (0, 0, 1) for an Axis along +x (its
+    # matrix for one along -x is degenerate), so that a body read here and one the kernel
+    # reads in the same file agree
+    along_x = axis is not None and ref is None and np.allclose(z, (1.0, 0.0, 0.0), atol=1e-5)
+    x = np.array(ref if ref else (0.0, 0.0, 1.0) if along_x else (1.0, 0.0, 0.0), dtype=float)
     x = x - (x @ z) * z
     if not np.linalg.norm(x) > 1e-12:
         raise ValueError(f"placement RefDirection {ref} is along its axis {axis}")
     M = ifcopenshell.util.placement.a2p(location, z, x / np.linalg.norm(x))
     M.flags.writeable = False
     return M
-
-
-def _perpendicular(z: np.ndarray) -> np.ndarray:
-    """OpenCASCADE's x direction of a frame given its z alone (`gp_Ax2(P, V)`): zero in the
-    coordinate of z's smallest component."""
-    a, b, c = z
-    if abs(b) <= abs(a) and abs(b) <= abs(c):
-        return np.array([-c, 0.0, a]) if abs(a) > abs(c) else np.array([c, 0.0, -a])
-    if abs(a) <= abs(b) and abs(a) <= abs(c):
-        return np.array([0.0, -c, b]) if abs(b) > abs(c) else np.array([0.0, c, -b])
-    return np.array([-b, a, 0.0]) if abs(a) > abs(b) else np.array([b, -a, 0.0])
 
 
 def body_items(element) -> list:

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from bimgraph.backend.pipeline import initial_alignment, load_model, model_path
-from bimgraph.backend.results import (ASSOCIATIONS, EXTRINSIC, METRICS, SUMMARY, TRAJECTORY_BIM, load_associations,
-                                      load_extrinsic, load_summary)
+from bimgraph.backend.results import (ASSOCIATIONS, EXTRINSIC, METRICS, SUMMARY, TRAJECTORY_BIM, check_stamps,
+                                      load_associations, load_extrinsic, load_summary)
 from bimgraph.config import Config
 from bimgraph.deviations.report import FACE_STATUSES, JSON_FILE as DEVIATIONS_JSON, load_deviations
 from bimgraph.errors import FormatError, InputError
@@ -37,10 +37,6 @@ def load_estimate(out_dir: Path) -> Estimate:
     return Estimate(list(T_B_C), pose_from_tum(extrinsic.T_B_S), associations, np.asarray(extrinsic.covariance), stamps)
 
 
-# (stamps are written with six decimals)
-_STAMP_TOL = 1e-5
-
-
 class Evaluation:
     """A simulated sequence loaded once, against which any number of methods are measured."""
 
@@ -62,8 +58,8 @@ class Evaluation:
         if len(estimate.T_B_C) != len(keyframes):
             raise FormatError(f"{name} has {len(estimate.T_B_C)} poses for {len(keyframes)} keyframes "
                               "(an unfinished online run?)")
-        if estimate.stamps is not None and np.abs(estimate.stamps - [kf.stamp for kf in keyframes]).max() > _STAMP_TOL:
-            raise FormatError(f"{name}: its trajectory's stamps are not those of {self.sequence.root}'s keyframes")
+        if estimate.stamps is not None:
+            check_stamps(name, estimate.stamps, keyframes, self.sequence.root)
         observed = {(kf.index, i) for kf in keyframes for i in range(len(kf.planes))}
         for (k, i), face in (estimate.associations or {}).items():
             if (k, i) not in observed:

@@ -53,14 +53,11 @@ def open_recording(rrd: Path | None = None, spawn: bool = False, camera: Camera 
             raise InputError(f"{rrd}: is a folder, not a recording file")
         ensure_folder(Path(rrd).parent, rrd)
         _check_writable(Path(rrd))
-    try:
-        if rrd is not None and spawn:
-            recording.spawn(connect=False)
-            recording.set_sinks(rr.GrpcSink(), rr.FileSink(str(rrd)), default_blueprint=blueprint)
-        elif rrd is not None:
-            recording.save(rrd, default_blueprint=blueprint)
-        elif spawn:
-            recording.spawn(default_blueprint=blueprint)
-    except RuntimeError as err:  # (rerun's, e.g. a file it cannot create)
-        raise InputError(f"{rrd}: cannot write the recording ({str(err).splitlines()[0]})") from None
+    if rrd is not None and spawn:
+        recording.spawn(connect=False)
+        recording.set_sinks(rr.GrpcSink(), rr.FileSink(str(rrd)), default_blueprint=blueprint)
+    elif rrd is not None:
+        recording.save(rrd, default_blueprint=blueprint)
+    elif spawn:
+        recording.spawn(default_blueprint=blueprint)
     return recording

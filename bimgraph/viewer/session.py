@@ -17,9 +17,6 @@ from bimgraph.viewer.follow import mark_deviations, read_depth
 from bimgraph.viewer.recording import open_recording
 from bimgraph.viewer.rerun_viewer import RerunViewer
 
-# Stamps are written with 6 decimals in TUM files.
-_STAMP_TOL = 1e-5
-
 
 def ground_truth(seq_dir: Path) -> tuple[dict[int, np.ndarray], np.ndarray | None]:
     """`T_B_C` by keyframe index and `T_B_S` of a simulated sequence, or ({}, None). The
@@ -66,8 +63,8 @@ def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | N
     of keyframes logged. The extrinsic at each keyframe is recovered as
     `T_B_C @ inverse(T_S_C)` from the two trajectories; associations are the final ones."""
     from bimgraph.backend.pipeline import initial_alignment, load_model, model_path
-    from bimgraph.backend.results import (ASSOCIATIONS, SUMMARY, TRAJECTORY_BIM, TRAJECTORY_SLAM, load_associations,
-                                          load_summary)
+    from bimgraph.backend.results import (ASSOCIATIONS, SUMMARY, TRAJECTORY_BIM, TRAJECTORY_SLAM, check_stamps,
+                                          load_associations, load_summary)
     from bimgraph.sequence.tum import read_tum
 
     out_dir = Path(out_dir)
@@ -86,9 +83,8 @@ def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | N
         raise InputError(f"{out_dir}: the run has no keyframe to show (it stopped at its first)")
     if len(stamps_slam) != len(stamps):
         raise FormatError(f"{out_dir}: {TRAJECTORY_BIM} has {len(stamps)} poses, {TRAJECTORY_SLAM} {len(stamps_slam)}")
+    check_stamps(str(out_dir), stamps, seq.keyframes, seq.root)
     keyframes = seq.keyframes[:len(stamps)]  # an interrupted online run covers a prefix
-    if len(stamps) > len(seq.keyframes) or np.abs(np.array([kf.stamp for kf in keyframes]) - stamps).max() > _STAMP_TOL:
-        raise InputError(f"{out_dir}: its trajectory's stamps are not those of {seq.root}'s keyframes")
     faces = load_associations(out_dir / ASSOCIATIONS).face_of_observation()
     statuses = deviation_statuses(out_dir)  # (every file read before the recording is written)
 

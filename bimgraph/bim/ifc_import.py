@@ -61,7 +61,7 @@ def import_ifc(path, cfg: BimImportConfig, log=None):
     skipped = {"walls skipped (no geometry)": sum(_skip(log, "wall", [w], reader.unreadable.get(w.id(), "no geometry"))
                                                    for w in walls if w.id() not in meshes)}
     if reader.kernel_fallbacks:
-        log(f"warning: {len(reader.kernel_fallbacks)} bodies read by the geometry kernel, the schema reader failing on them "
+        log(f"warning: {len(reader.kernel_fallbacks)} bodies the schema reader could not read, left to the geometry kernel "
             f"(the first: {reader.kernel_fallbacks[0]})")
     curtain_walls = model.by_type("IfcCurtainWall")
     for wall in curtain_walls:

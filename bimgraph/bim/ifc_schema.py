@@ -5,6 +5,7 @@ polylines, the bodies of openings and rooms when they are extruded polygons or f
 from __future__ import annotations
 
 import functools
+import math
 
 import ifcopenshell.util.placement
 import numpy as np
@@ -39,10 +40,11 @@ def _a2p(spelling: str, location: tuple, axis: tuple | None, ref: tuple | None) 
     # IFC allows a RefDirection that is not perpendicular to the Axis: its projection onto the
     # plane across the axis is the x axis (as geometry kernels take it), so the frame is rigid.
     # An Axis without one breaks IFC's rule that both or neither be given: x is then what
-    # ifcopenshell's kernel takes, (1, 0, 0) projected, or (0, 0, 1) for an Axis along +x (its
-    # matrix for one along -x is degenerate), so that a body read here and one the kernel
-    # reads in the same file agree
-    along_x = axis is not None and ref is None and np.allclose(z, (1.0, 0.0, 0.0), atol=1e-5)
+    # ifcopenshell's kernel takes (mapping/IfcAxis2Placement3D.cpp), so that a body read here
+    # and one the kernel reads in the same file agree: (1, 0, 0) projected, unless
+    # acos(Axis . (1, 0, 0)) is within 1e-5 of 0 or undefined, on the Axis as written (not
+    # normalised), then (0, 0, 1); its matrix for an Axis along -x is degenerate
+    along_x = axis is not None and ref is None and not (-1.0 <= float(axis[0]) < math.cos(1e-5))
     x = np.array(ref if ref else (0.0, 0.0, 1.0) if along_x else (1.0, 0.0, 0.0), dtype=float)
     x = x - (x @ z) * z
     if not np.linalg.norm(x) > 1e-12:

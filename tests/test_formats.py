@@ -139,6 +139,8 @@ def test_sequence_loads(tmp_path):
         (dict(KF, index=1, stamp=0.0), "line 2: stamp: 0.0 does not follow 0.0"),
         (dict(KF, index=1, stamp=0.1, planes=[dict(KF["planes"][0], polygon=[[0, 0, 2], [1, 0, 2]])]),
          r"line 2: planes\[0\].polygon: a polygon has at least 3 points"),
+        (dict(KF, index=1, stamp=0.1, planes=[dict(KF["planes"][0], polygon=[[0, 0, 2], [1, 0, 2], [1, 1, 52]])]),
+         r"line 2: planes\[0\]: polygon: a point lies 50.00 m off the plane"),
         (dict(KF, index=1, planes=[dict(KF["planes"][0], cov=[[1, 0, 0], [0, -1, 0], [0, 0, 1]])]), "positive definite"),
     ],
 )

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from bimgraph.errors import FormatError, InputError
 from bimgraph.files import parse_json, read_json, write_atomic, write_json
@@ -68,6 +68,11 @@ class InitialAlignment(BaseModel):
     sigma_trans_m: float = Field(default=0.2, gt=0, le=1000)
 
 
+# A detection's polygon is its boundary on its plane; a front-end's noisy boundary points may
+# stray from the fitted plane by centimetres, not this much.
+_POLYGON_OFF_PLANE_M = 0.25
+
+
 class PlaneObservation(BaseModel):
     """A plane detected in the camera frame C, `n . x + d = 0`, normal toward the camera (d > 0).
 
@@ -101,6 +106,16 @@ class PlaneObservation(BaseModel):
         if polygon and len(polygon) < 3:
             raise ValueError(f"a polygon has at least 3 points, not {len(polygon)} (or none: [] or null)")
         return polygon
+
+    @model_validator(mode="after")
+    def _polygon_on_plane(self):
+        # (its points grow the landmark's extent, which gates association: one far off would
+        # let planes of other rooms join it)
+        if self.polygon:
+            off = float(np.abs(np.asarray(self.polygon) @ self.plane[:3] + self.d).max())
+            if off > _POLYGON_OFF_PLANE_M:
+                raise ValueError(f"polygon: a point lies {off:.2f} m off the plane (at most {_POLYGON_OFF_PLANE_M})")
+        return self
 
     @property
     def plane(self) -> np.ndarray:

@@ -58,8 +58,8 @@ def import_ifc(path, cfg: BimImportConfig, log=None):
              for wall in walls}
     spaces = model.by_type("IfcSpace")
     meshes, solids = reader.meshes_and_solids(walls, [o for os in voids.values() for o in os] + list(spaces))
-    skipped = {"walls skipped (no geometry)": sum(_skip(log, "wall", [w], reader.unreadable.get(w.id(), "no geometry"))
-                                                   for w in walls if w.id() not in meshes)}
+    skipped = {"walls skipped (no geometry)": _skip(log, "wall", [w for w in walls if w.id() not in meshes], "no geometry",
+                                                   reader.unreadable)}
     if reader.kernel_fallbacks:
         log(f"warning: {len(reader.kernel_fallbacks)} bodies the schema reader could not read, left to the geometry kernel "
             f"(the first: {reader.kernel_fallbacks[0]})")
@@ -67,15 +67,16 @@ def import_ifc(path, cfg: BimImportConfig, log=None):
     for wall in curtain_walls:
         log(f"warning: curtain wall {wall.GlobalId} ({wall.Name}): not imported")
 
-    wall_faces, unreadable = _wall_faces(reader, [w for w in walls if w.id() in meshes], meshes, voids, solids, cfg, log)
-    skipped["walls skipped (geometry unreadable)"] = len(unreadable)
+    wall_faces = _wall_faces(reader, [w for w in walls if w.id() in meshes], meshes, voids, solids, cfg, log)
+    unreadable = [w for w in walls if w.id() in meshes and w.id() in reader.unreadable]
+    skipped["walls skipped (geometry unreadable)"] = _skip(log, "wall", unreadable, "", reader.unreadable)
     sections = _split_per_room(reader, wall_faces, meshes, spaces, solids, cfg)
     if reader.unread_boundaries:
         log(f"warning: {reader.unread_boundaries} space boundaries could not be read, skipped (their rooms are found by their solids)")
     # Whatever takes a wall's faces (a sliver, none vertical or along its axis, all below the
     # minimum area, or cut up by openings and rooms), it must not vanish unnoticed.
     imported = {section.wall_guid for section in sections}
-    faceless = [w for w in walls if w.id() in meshes and w.id() not in unreadable and w.GlobalId not in imported]
+    faceless = [w for w in walls if w.id() in meshes and w.id() not in reader.unreadable and w.GlobalId not in imported]
     skipped["walls skipped (no side face)"] = _skip(log, "wall", faceless, f"no side face of at least {cfg.min_face_area_m2} m2")
     if not sections:
         raise InputError(f"{path}: no wall face of at least {cfg.min_face_area_m2} m2")
@@ -88,26 +89,27 @@ def import_ifc(path, cfg: BimImportConfig, log=None):
     return plane_map, _report(path, walls, skipped, curtain_walls, wall_faces, sections, seconds)
 
 
-def _skip(log, kind: str, elements, reason: str) -> int:
-    """Warn that each of `elements` (of `kind`) is skipped for `reason`; returns how many."""
+def _skip(log, kind: str, elements, reason: str, reasons: dict[int, str] | None = None) -> int:
+    """Warn that each of `elements` (of `kind`) is skipped for `reason`, or for its own in
+    `reasons` (by element id); returns how many."""
     for element in elements:
-        log(f"warning: {kind} {element.GlobalId} ({element.Name}): {reason}, skipped")
+        why = (reasons or {}).get(element.id(), reason)
+        log(f"warning: {kind} {element.GlobalId} ({element.Name}): {why}, skipped")
     return len(elements)
 
 
-def _wall_faces(reader: ModelReader, walls, meshes, voids, solids, cfg, log) -> tuple[list[tuple[object, F.Face, float]], set[int]]:
+def _wall_faces(reader: ModelReader, walls, meshes, voids, solids, cfg, log) -> list[tuple[object, F.Face, float]]:
     """[(wall, face, depth behind the face)] for every side face, openings cut out (`voids`:
-    wall id -> its openings, `solids`: their meshes by id); and the ids of the walls whose
-    geometry could not be read (warned about through `log`)."""
+    wall id -> its openings, `solids`: their meshes by id). A wall whose geometry cannot be
+    read goes into `reader.unreadable`, with why."""
     angle_tol, axis_tol = np.radians(cfg.coplanar_angle_deg), np.radians(cfg.axis_tol_deg)
-    per_wall, unreadable = {}, set()
+    per_wall = {}
     for wall in walls:
         try:
             per_wall[wall.id()] = (wall, _sides(reader, wall, meshes[wall.id()], cfg, angle_tol, axis_tol))
         except Exception as err:  # a geometry this reader cannot follow: the rest goes on
-            unreadable.add(wall.id())
-            log(f"warning: wall {wall.GlobalId} ({wall.Name}): its geometry cannot be read "
-                f"({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}), skipped")
+            reader.unreadable[wall.id()] = (f"its geometry cannot be read "
+                                            f"({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})")
     for opening in (o for wall, _ in per_wall.values() for o in voids[wall.id()] if o.id() not in solids):
         log(f"warning: opening {opening.GlobalId} has no geometry; its wall keeps the area")
 
@@ -121,7 +123,7 @@ def _wall_faces(reader: ModelReader, walls, meshes, voids, solids, cfg, log) -> 
                 face.region = face.region.difference(shapely.union_all(holes, grid_size=cfg.grid_m), grid_size=cfg.grid_m)
             if face.region.area >= cfg.min_face_area_m2:
                 out.append((wall, face, depth))
-    return out, unreadable
+    return out
 
 
 def _sides(reader: ModelReader, wall, mesh, cfg, angle_tol: float, axis_tol: float) -> list[tuple[F.Face, float]]:

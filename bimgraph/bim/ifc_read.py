@@ -115,7 +115,7 @@ class ModelReader:
         self._storeys = {}  # element id -> (storey name, elevation)
         self._storey_rows = {}  # storey id -> (name, elevation)
         self.unread_boundaries = 0  # space boundaries whose geometry `boundaries` could not read
-        self.unreadable: dict[int, str] = {}  # element id -> why its geometry cannot be read at all
+        self.unreadable: dict[int, str] = {}  # element id -> why its geometry cannot be read
         self.kernel_fallbacks: list[str] = []  # bodies the schema reader failed on, left to the kernel
         self.settings = {}
         for subtract in (False, True):

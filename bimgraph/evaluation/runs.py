@@ -52,6 +52,8 @@ class Evaluation:
                                   f"keyframes.jsonl {len(kf.planes)}")
         self.plane_map = load_model(model_path(seq_dir, self.sequence.meta, None), cfg)
         self.manual = initial_alignment(self.sequence.meta, cfg)
+        # every (keyframe, plane) the sequence has, which an association may name
+        self._observed = {(kf.index, i) for kf in self.sequence.keyframes for i in range(len(kf.planes))}
 
     def metrics(self, estimate: Estimate, name: str = "the run") -> dict:
         keyframes = self.sequence.keyframes
@@ -60,9 +62,8 @@ class Evaluation:
                               "(an unfinished online run?)")
         if estimate.stamps is not None:
             check_stamps(name, estimate.stamps, keyframes, self.sequence.root)
-        observed = {(kf.index, i) for kf in keyframes for i in range(len(kf.planes))}
         for (k, i), face in (estimate.associations or {}).items():
-            if (k, i) not in observed:
+            if (k, i) not in self._observed:
                 raise FormatError(f"{name}: associations name plane {i} of keyframe {k}, which {self.sequence.root} does not have")
             if face is not None and face not in self.plane_map.index:
                 raise FormatError(f"{name}: associations name face {face!r}, which the plane map does not have")

@@ -272,6 +272,23 @@ def test_expected_in_view_by_ray_casting():
     assert counts["east-face"] == 0
 
 
+def test_a_building_map_is_tested_near_the_walk_only_and_counted_whole():
+    """The room among 40 copies of itself 10-400 m above (a building's map): the copies are
+    out of range, counted 0; a partition whose corners and centre all lie 50 m off or more, but which crosses
+    the room, still hides the east wall, and the counts of the room are those of the room
+    alone with that partition."""
+    T_B_C = np.stack([camera_looking((1.5, 2.0, 1.25), 0.0)] * 3)
+    copies = [f.model_copy(update={"id": f"{f.id}-{k}"}) for k in range(1, 41) for f in
+              (face(name, z0=10.0 * k) for name in WALLS)]
+    partition = BimFace(id="partition", wall_guid="0K1h3Qe3j8Nuv5bzvOkWdm", normal=(-1, 0, 0), offset=3.0,
+                        polygon=[(3, -150, 0), (3, 50, 0), (3, 50, 2.5), (3, -150, 2.5)])
+    counts = expected_view_counts(PlaneMap(faces=room().faces + copies + [partition]), T_B_C, K, 640, 480, CFG)
+    assert counts["partition"] == 3 and counts["east-face"] == 0
+    assert len(counts) == 4 + 160 + 1 and all(counts[f.id] == 0 for f in copies)
+    alone = expected_view_counts(PlaneMap(faces=room().faces + [partition]), T_B_C, K, 640, 480, CFG)
+    assert alone == {face_id: n for face_id, n in counts.items() if face_id in alone}
+
+
 def test_walls_of_another_storey_are_not_in_view_through_the_floor():
     """A camera in the room looks down toward a wall of the storey below: a map of walls alone
     gets a floor at each storey's elevation, which hides it (before, such walls of every

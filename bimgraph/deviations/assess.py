@@ -62,7 +62,9 @@ def proximity_candidates(faces: Sequence[BimFace], planes: Sequence[ObservedPlan
     plane is then not measured by that neighbour's landmark: in view, it is listed as possibly
     not built rather than measured by the step."""
     T_B_S = inverse(T_S_B)
-    shapes = {face.id: face_shape(face) for face in faces}
+    normals = np.array([face.normal for face in faces], dtype=float).reshape(-1, 3)
+    centres = np.array([face.centre for face in faces], dtype=float).reshape(-1, 3)
+    shapes: dict[int, tuple] = {}  # (made for the faces a plane passes: a building's map has thousands)
     by_id = {face.id: face for face in faces}
     candidates: dict[str, list[ObservedPlane]] = {}
     for plane in planes:
@@ -70,14 +72,16 @@ def proximity_candidates(faces: Sequence[BimFace], planes: Sequence[ObservedPlan
         if len(extent_B) == 0:
             continue
         plane_B = plane_to_frame(plane.plane_S(), T_S_B)
-        distance = {}
-        for face in faces:
-            if normal_angle_deg(plane_B[:3], np.asarray(face.normal)) <= cfg.match_max_tilt_deg:
-                distance[face.id] = abs(float(point_plane_distance(np.asarray(face.centre), plane_B)))
-        near = [by_id[face_id] for face_id, d in distance.items()
-                if d <= cfg.match_max_offset_m and _overlap(shapes[face_id], extent_B, cfg)]
-        own = by_id.get(plane.face_id) or min(near, key=lambda face: distance[face.id], default=None)
-        for face in near:
+        tilt_deg = np.degrees(np.arccos(np.clip(normals @ plane_B[:3], -1.0, 1.0)))
+        distance = np.abs(point_plane_distance(centres, plane_B))
+        near = []
+        for i in np.flatnonzero((tilt_deg <= cfg.match_max_tilt_deg) & (distance <= cfg.match_max_offset_m)):
+            if i not in shapes:
+                shapes[i] = face_shape(faces[i])
+            if _overlap(shapes[i], extent_B, cfg):
+                near.append(i)
+        own = by_id.get(plane.face_id) or (faces[min(near, key=lambda i: distance[i])] if near else None)
+        for face in (faces[i] for i in near):
             if _coplanar_in_plan(own, face, cfg):
                 candidates.setdefault(face.id, []).append(plane)
     return candidates

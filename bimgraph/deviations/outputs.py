@@ -3,7 +3,7 @@ written (deviations.json, deviations.csv, deviations.bcf) into the output folder
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -22,13 +22,12 @@ DEVIATION_FILES = (JSON_FILE, CSV_FILE, BCF_FILE)
 
 def write_deviation_outputs(out_dir: Path, plane_map: PlaneMap, planes: Sequence[ObservedPlane], T_B_S: np.ndarray,
                             T_B_C: Sequence[np.ndarray], camera: Camera | None, cfg: DeviationConfig,
-                            project_name: str = "bimgraph as-built deviations",
-                            progress: Callable[[int], None] | None = None) -> DeviationsFile:
+                            project_name: str = "bimgraph as-built deviations") -> DeviationsFile:
     """Assess and write. Without a camera (a sequence that names none) no face can be said to
     have been in view, so none is listed as possibly not built."""
     expected = None
     if camera is not None:
-        expected = expected_view_counts(plane_map, np.asarray(T_B_C), camera.K, camera.width, camera.height, cfg, progress)
+        expected = expected_view_counts(plane_map, np.asarray(T_B_C), camera.K, camera.width, camera.height, cfg)
     report = assess(plane_map, planes, np.linalg.inv(T_B_S), cfg, expected)
     out_dir = Path(out_dir)
     data = write_deviations(report, out_dir)

@@ -13,12 +13,13 @@ Pure computation, no I/O.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import open3d as o3d
 import shapely
+from scipy.spatial import cKDTree
 
 from bimgraph.bim.planemap import BimFace, PlaneMap
 from bimgraph.config import DeviationConfig
@@ -81,35 +82,54 @@ def storey_floors(faces: Sequence[BimFace], margin_m: float) -> list[np.ndarray]
     return [np.array([(x0, y0, z), (x1, y0, z), (x1, y1, z), (x0, y1, z)]) for z in sorted(set(elevations.values()))]
 
 
-def _scene(faces: Sequence[BimFace], margin_m: float) -> o3d.t.geometry.RaycastingScene:
+def _scene(faces: Sequence[BimFace], floors: list[np.ndarray]) -> o3d.t.geometry.RaycastingScene:
     scene = o3d.t.geometry.RaycastingScene()
     meshes = [face_mesh(face.polygon, face.holes, face.plane) for face in faces]
-    meshes += [(floor, np.array([[0, 1, 2], [0, 2, 3]])) for floor in storey_floors(faces, margin_m)]
+    meshes += [(floor, np.array([[0, 1, 2], [0, 2, 3]])) for floor in floors]
     for V, T in meshes:
         if len(T):
             scene.add_triangles(o3d.core.Tensor(V.astype(np.float32)), o3d.core.Tensor(T.astype(np.uint32)))
     return scene
 
 
+def _in_reach(faces: Sequence[BimFace], centres_B: np.ndarray, reach_m: float) -> np.ndarray:
+    """Indices of the faces whose bounding box comes within `reach_m` of the box of the camera
+    centres: no other face holds a point in range of a camera, or lies on the way to one."""
+    lo, hi = centres_B.min(axis=0) - reach_m, centres_B.max(axis=0) + reach_m
+    boxes = [np.asarray(face.polygon, dtype=float) for face in faces]
+    return np.array([i for i, corners in enumerate(boxes) if (corners.max(axis=0) >= lo).all() and (corners.min(axis=0) <= hi).all()],
+                    dtype=int)
+
+
 def expected_view_counts(plane_map: PlaneMap, T_B_C: np.ndarray, K: np.ndarray, width: int, height: int,
-                         cfg: DeviationConfig, progress: Callable[[int], None] | None = None) -> dict[str, int]:
+                         cfg: DeviationConfig) -> dict[str, int]:
     """For every face, the number of keyframes (poses `T_B_C`, K x 4 x 4, OpenCV camera axes)
     at which at least `cfg.visibility_min_area_m2` of it was in view and not hidden."""
     faces = plane_map.faces
-    samples = sample_faces(faces, cfg.visibility_grid_m)
-    normals = np.asarray([f.normal for f in faces])[samples.face]
-    # (floors beyond the map by the range: a camera farther out sees nothing of it anyway)
-    scene = _scene(faces, cfg.visibility_max_range_m)
-    cos_max = np.cos(np.radians(cfg.visibility_max_obliquity_deg))
+    T_B_C = np.asarray(T_B_C).reshape(-1, 4, 4)
+    # Only the faces near the walk are sampled and hide others: a building's map has thousands.
+    reach = _in_reach(faces, T_B_C[:, :3, 3], cfg.visibility_max_range_m + 0.1) if len(T_B_C) else np.zeros(0, dtype=int)
+    nearby = [faces[i] for i in reach]
     counts = np.zeros(len(faces), dtype=int)
-    for k, T in enumerate(np.asarray(T_B_C).reshape(-1, 4, 4)):
+    if not nearby:
+        return {f.id: 0 for f in faces}  # (a walk outside the building)
+    samples = sample_faces(nearby, cfg.visibility_grid_m)
+    normals = np.asarray([f.normal for f in nearby])[samples.face]
+    # (floors beyond the map by the range: a camera farther out sees nothing of it anyway)
+    scene = _scene(nearby, storey_floors(faces, cfg.visibility_max_range_m))
+    cos_max = np.cos(np.radians(cfg.visibility_max_obliquity_deg))
+    # A camera sees only the samples within range: on a building's map (a thousand walls,
+    # 300 000 samples) testing all of them at every keyframe took a minute.
+    tree = cKDTree(samples.points_B)
+    for T in T_B_C:
         c = T[:3, 3]
-        to_cam = c - samples.points_B
+        near = np.sort(np.asarray(tree.query_ball_point(c, cfg.visibility_max_range_m + 1e-6), dtype=int))
+        to_cam = c - samples.points_B[near]
         dist = np.linalg.norm(to_cam, axis=1)
         p_C = -to_cam @ T[:3, :3]
         z = p_C[:, 2]
         ok = (dist >= cfg.visibility_min_range_m) & (dist <= cfg.visibility_max_range_m) & (z > 1e-6)
-        ok &= np.einsum("ij,ij->i", normals, to_cam) >= cos_max * dist
+        ok &= np.einsum("ij,ij->i", normals[near], to_cam) >= cos_max * dist
         u = K[0, 0] * p_C[:, 0] / np.where(ok, z, 1.0) + K[0, 2]
         v = K[1, 1] * p_C[:, 1] / np.where(ok, z, 1.0) + K[1, 2]
         ok &= (u >= 0) & (u < width) & (v >= 0) & (v < height)
@@ -118,9 +138,7 @@ def expected_view_counts(plane_map: PlaneMap, T_B_C: np.ndarray, K: np.ndarray, 
             dirs = -to_cam[idx] / dist[idx, None]
             rays = np.hstack([np.broadcast_to(c, (len(idx), 3)), dirs]).astype(np.float32)
             t_hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
-            seen = idx[t_hit >= dist[idx] - 1e-3]
-            area = np.bincount(samples.face[seen], weights=samples.area_m2[seen], minlength=len(faces))
-            counts += area >= max(cfg.visibility_min_area_m2, 1e-12)
-        if progress is not None:
-            progress(k)
+            seen = near[idx[t_hit >= dist[idx] - 1e-3]]
+            area = np.bincount(samples.face[seen], weights=samples.area_m2[seen], minlength=len(nearby))
+            counts[reach] += area >= max(cfg.visibility_min_area_m2, 1e-12)
     return {f.id: int(n) for f, n in zip(faces, counts)}

@@ -300,7 +300,7 @@ def run(
 def view(
     outdir: Path = typer.Argument(..., help="The output folder of a finished `bimgraph run`."),
     sequence: Optional[Path] = typer.Option(None, "--sequence", "-s", help="The run's sequence folder (default: the one summary.json names)."),
-    bim_model: Optional[Path] = typer.Option(None, "--bim", help="IFC model or plane map JSON; default: the model sequence.json names."),
+    bim_model: Optional[Path] = typer.Option(None, "--bim", help="IFC model or plane map JSON; default: the one the run used (summary.json names it), else the one sequence.json names."),
     rrd: Optional[Path] = typer.Option(None, "--rrd", help="Save the recording to this .rrd file instead of opening the viewer."),
     spawn: bool = typer.Option(False, "--spawn", help="Also open the viewer when saving with --rrd."),
     config_file: Optional[Path] = ConfigOption,
@@ -325,6 +325,7 @@ def evaluate(
     outdirs: list[Path] = typer.Argument(..., help="Output folders of `bimgraph run` on the same sequence."),
     gt: Path = typer.Option(..., "--gt", help="The simulated sequence folder (with groundtruth/)."),
     baselines: bool = typer.Option(True, "--baselines/--no-baselines", help="Also measure the seed paper's manual, global and local alignment, with the first run's associations."),
+    bim_model: Optional[Path] = typer.Option(None, "--bim", help="IFC model or plane map JSON to measure against; default: the one the runs used (their summary.json names it), else the one the sequence names."),
     config_file: Optional[Path] = ConfigOption,
 ):
     """Measure runs against ground truth: ATE, RPE, extrinsic error, the paper's wall errors,
@@ -337,10 +338,10 @@ def evaluate(
     from bimgraph.config import load_config
     from bimgraph.evaluation.evaluate import reduction_percent
     from bimgraph.evaluation.report import metrics_table
-    from bimgraph.evaluation.runs import Evaluation, load_estimate, run_timings, summary_row, write_metrics
+    from bimgraph.evaluation.runs import Evaluation, load_estimate, model_of_runs, run_timings, summary_row, write_metrics
 
     cfg = load_config(config_file)
-    evaluation = Evaluation(gt, cfg)
+    evaluation = Evaluation(gt, cfg, bim_model or model_of_runs(outdirs))
     # every run read, validated and measured before any metrics.json is written
     estimates = {str(d): load_estimate(d) for d in outdirs}
     timings = {str(d): run_timings(d) for d in outdirs}

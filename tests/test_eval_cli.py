@@ -159,3 +159,35 @@ def test_ground_truth_of_other_planes_is_one_line(finished_run, tmp_path):
     path.write_text("\n".join(lines) + "\n")
     result = CliRunner().invoke(app, ["eval", str(out), "--gt", str(copy), "--no-baselines"])
     assert_one_line_error(result, 3, "observations.jsonl has", f"planes for keyframe {record['index']}")
+
+
+def renamed_map(seq, path):
+    """The sequence's plane map with every face id prefixed `alt-`: a map the sequence does
+    not name, whose faces its own model lacks."""
+    data = json.loads((seq / "planes.json").read_text())
+    for face in data["faces"]:
+        face["id"] = "alt-" + face["id"]
+    path.write_text(json.dumps(data))
+    return path
+
+
+def test_eval_measures_against_the_model_the_run_used(finished_run, tmp_path):
+    """A run given `--bim` names faces of that map: eval read the sequence's own model instead
+    and refused the run ("associations name face 'alt-...'"). The same run on the renamed map
+    is measured alike."""
+    seq, out = finished_run
+    alt, run = renamed_map(seq, tmp_path / "alt.json"), tmp_path / "alt-run"
+    assert CliRunner().invoke(app, ["run", str(seq), "-o", str(run), "--bim", str(alt)]).exit_code == 0
+    assert json.loads((run / "associations.json").read_text())["associations"][0]["face"].startswith("alt-")
+    for d in (out, run):
+        result = CliRunner().invoke(app, ["eval", str(d), "--gt", str(seq), "--no-baselines"])
+        assert result.exit_code == 0, result.output
+    same, renamed = (json.loads((d / "metrics.json").read_text()) for d in (out, run))
+    assert renamed["ate_m"] == same["ate_m"] and renamed["extrinsic_trans_cm"] == same["extrinsic_trans_cm"]
+
+    both = CliRunner().invoke(app, ["eval", str(out), str(run), "--gt", str(seq), "--no-baselines"])
+    assert_one_line_error(both, 2, "the runs used different BIM models")
+    assert CliRunner().invoke(app, ["eval", str(run), "--gt", str(seq), "--no-baselines", "--bim", str(alt)]).exit_code == 0
+    alt.unlink()
+    assert_one_line_error(CliRunner().invoke(app, ["eval", str(run), "--gt", str(seq)]), 2,
+                          f"{run}: the run's BIM model {alt} is not there; give it with --bim")

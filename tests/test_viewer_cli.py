@@ -191,3 +191,18 @@ def test_without_the_viewer_executable_spawning_is_one_line(online_run, seq_dir,
     result = CliRunner().invoke(app, ["view", str(online_run), "--sequence", str(root)])
     assert_one_line_error(result, 4, "no Rerun viewer (`rerun`) on PATH")
     assert no_viewer == []
+
+
+def test_view_shows_the_model_the_run_used(seq_dir, tmp_path):
+    """A run given `--bim` is shown on that map, not on the one the sequence names."""
+    from test_eval_cli import renamed_map
+
+    root, scene = seq_dir
+    alt, run = renamed_map(root, tmp_path / "alt.json"), tmp_path / "run"
+    assert CliRunner().invoke(app, ["run", str(root), "-o", str(run), "--bim", str(alt)]).exit_code == 0
+    result = CliRunner().invoke(app, ["view", str(run), "--rrd", str(tmp_path / "x.rrd")])
+    assert result.exit_code == 0, result.output
+    entities = row_counts(tmp_path / "x.rrd")
+    faces = [f.id for f in scene.plane_map.faces]
+    assert all("/" + face_entity("alt-" + f) in entities for f in faces)
+    assert not any("/" + face_entity(f) in entities for f in faces)

@@ -16,7 +16,7 @@ from bimgraph.backend.offline import OfflineEstimator, run_offline
 from bimgraph.backend.online import Backend
 from bimgraph.backend.records import Listener, Results
 from bimgraph.backend.results import (ASSOCIATIONS, EXTRINSIC, LANDMARKS, METRICS, SUMMARY, TRAJECTORY_BIM,
-                                      TRAJECTORY_SLAM, OnlineWriter, write_results, write_summary)
+                                      TRAJECTORY_SLAM, OnlineWriter, load_summary, write_results, write_summary)
 from bimgraph.bim.planemap import PlaneMap, load_plane_map
 from bimgraph.config import Config
 from bimgraph.deviations.graph import observed_planes_isam2
@@ -46,6 +46,19 @@ def model_path(root: Path, meta: SequenceMeta, bim: Path | None) -> Path:
         raise InputError(f"{root}: sequence.json names no model; give one with --bim")
     p = Path(meta.model)
     return p if p.is_absolute() else Path(root) / p
+
+
+def run_model(out_dir: Path) -> Path | None:
+    """The BIM model a finished run used (its summary.json names it), to read its outputs
+    against: a run given `--bim planes.json` names faces that the sequence's own model may
+    not have, and re-importing that IFC can take long. None if the run names none."""
+    summary = Path(out_dir) / SUMMARY
+    named = load_summary(summary).model if summary.is_file() else None
+    if named is None:
+        return None
+    if not Path(named).is_file():
+        raise InputError(f"{out_dir}: the run's BIM model {named} is not there; give it with --bim")
+    return Path(named)
 
 
 def initial_alignment(meta: SequenceMeta, cfg: Config) -> Alignment:

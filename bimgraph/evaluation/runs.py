@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bimgraph.backend.pipeline import initial_alignment, load_model, model_path
+from bimgraph.backend.pipeline import initial_alignment, load_model, model_path, run_model
 from bimgraph.backend.results import (ASSOCIATIONS, EXTRINSIC, METRICS, SUMMARY, TRAJECTORY_BIM, check_stamps,
                                       load_associations, load_extrinsic, load_summary)
 from bimgraph.config import Config
@@ -37,10 +37,21 @@ def load_estimate(out_dir: Path) -> Estimate:
     return Estimate(list(T_B_C), pose_from_tum(extrinsic.T_B_S), associations, np.asarray(extrinsic.covariance), stamps)
 
 
+def model_of_runs(out_dirs) -> Path | None:
+    """The BIM model the runs used (`pipeline.run_model`); None if they name none. Runs on
+    different models are refused: their associations name faces of different maps."""
+    used = {m for d in out_dirs if (m := run_model(d)) is not None}
+    if len(used) > 1:
+        raise InputError(f"the runs used different BIM models ({', '.join(sorted(map(str, used)))}); "
+                         "give the one to measure against with --bim")
+    return next(iter(used), None)
+
+
 class Evaluation:
     """A simulated sequence loaded once, against which any number of methods are measured."""
 
-    def __init__(self, seq_dir: Path, cfg: Config):
+    def __init__(self, seq_dir: Path, cfg: Config, model: Path | None = None):
+        """`model`: the BIM model the runs used (default: the one the sequence names)."""
         self.cfg = cfg
         self.sequence: Sequence = load_sequence(seq_dir)
         self.gt: GroundTruth = load_groundtruth(seq_dir)
@@ -50,7 +61,7 @@ class Evaluation:
             if len(truths) != len(kf.planes):  # (the association's precision and recall would count the wrong planes)
                 raise FormatError(f"{seq_dir}: groundtruth/observations.jsonl has {len(truths)} planes for keyframe {kf.index}, "
                                   f"keyframes.jsonl {len(kf.planes)}")
-        self.plane_map = load_model(model_path(seq_dir, self.sequence.meta, None), cfg)
+        self.plane_map = load_model(model or model_path(seq_dir, self.sequence.meta, None), cfg)
         self.manual = initial_alignment(self.sequence.meta, cfg)
         # every (keyframe, plane) the sequence has, which an association may name
         self._observed = {(kf.index, i) for kf in self.sequence.keyframes for i in range(len(kf.planes))}

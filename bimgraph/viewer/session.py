@@ -62,7 +62,7 @@ def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | N
     associations.json, deviations.json if any) against its sequence; returns the number
     of keyframes logged. The extrinsic at each keyframe is recovered as
     `T_B_C @ inverse(T_S_C)` from the two trajectories; associations are the final ones."""
-    from bimgraph.backend.pipeline import initial_alignment, load_model, model_path
+    from bimgraph.backend.pipeline import initial_alignment, load_model, model_path, run_model
     from bimgraph.backend.results import (ASSOCIATIONS, SUMMARY, TRAJECTORY_BIM, TRAJECTORY_SLAM, check_stamps,
                                           load_associations, load_summary)
     from bimgraph.sequence.tum import read_tum
@@ -76,7 +76,7 @@ def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | N
             raise InputError(f"{out_dir}: the run does not name its sequence; give it with --sequence SEQDIR")
         seq_dir = Path(named)
     seq = load_sequence(seq_dir)
-    plane_map = load_model(model_path(seq.root, seq.meta, bim), cfg)
+    plane_map = load_model(bim or run_model(out_dir) or model_path(seq.root, seq.meta, None), cfg)
     stamps, T_B_C = read_tum(out_dir / TRAJECTORY_BIM)
     stamps_slam, T_S_C = read_tum(out_dir / TRAJECTORY_SLAM)
     if len(stamps) == 0:

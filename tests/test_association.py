@@ -78,6 +78,36 @@ def test_a_wall_seen_whole_matches_its_face_around_a_door():
     assert [m.face for m in matches] == ["a"]
 
 
+def test_an_observation_takes_the_nearest_section_of_a_long_facade():
+    """A facade of 8 storeys, each cut in sections of 1-6 m, some U-shaped around a door (a
+    section's box then lies nearer than its outline): the member an observation lies on is
+    the one nearest to it, as measured against every member's outline."""
+    from bimgraph.bim.planemap import BimFace, PlaneMap
+
+    rng = np.random.default_rng(3)
+    faces = []
+    for storey in range(8):
+        z0, x = 3.0 * storey, 0.0
+        while x < 60.0:
+            w = rng.uniform(1.0, 6.0)
+            if w > 3.0:  # a door notch at the foot
+                poly = [(x, 0, z0), (x + 1, 0, z0), (x + 1, 0, z0 + 2.1), (x + 2, 0, z0 + 2.1), (x + 2, 0, z0),
+                        (x + w, 0, z0), (x + w, 0, z0 + 3.0), (x, 0, z0 + 3.0)]
+            else:
+                poly = [(x, 0, z0), (x + w, 0, z0), (x + w, 0, z0 + 3.0), (x, 0, z0 + 3.0)]
+            faces.append(BimFace(id=f"s{storey}-{x:.2f}", wall_guid="w", normal=(0, 1, 0), offset=0.0, polygon=poly))
+            x += w + rng.uniform(0.0, 0.3)
+    index = FaceIndex(PlaneMap(faces=faces), BackendConfig().bim_association)
+    (group,) = set(index.group.tolist())
+    assert len(index.members[group]) == len(faces) > 100
+    import shapely
+
+    for point in np.c_[rng.uniform(-2, 62, 300), np.zeros(300), rng.uniform(-1, 25, 300)]:
+        p = shapely.points(index.to_2d(index.rep[group], point[None])[0])
+        nearest = index.ids[int(np.argmin(shapely.distance(index.outline, p)))]
+        assert index.member_at(group, point) == nearest
+
+
 def _one_wall(cfg):
     """One wall face (y = 0, normal +y, 4 m by 3 m) and a plane 5 cm before its centre turned
     by `deg` about `axis` (the plane, as a function)."""

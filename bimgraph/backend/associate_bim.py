@@ -84,6 +84,7 @@ class FaceIndex:
         # wall seen whole centres in the doorway)
         self.outline = np.array([Polygon(self.to_2d(self.rep[self.group[i]], np.asarray(f.polygon))) for i, f in enumerate(self.faces)],
                                 dtype=object)
+        self.outline_bounds = shapely.bounds(self.outline).reshape(-1, 4)
         self.group_outline = [shapely.union_all([self.outline[i].convex_hull for i in m]) for m in self.members]
         for poly in self.group_outline:
             shapely.prepare(poly)
@@ -103,8 +104,15 @@ class FaceIndex:
         members = self.members[group]
         if len(members) == 1:
             return self.ids[members[0]]
-        p = shapely.points(self.to_2d(self.rep[group], point_B[None])[0])
-        return self.ids[members[np.argmin(shapely.distance(self.outline[members], p))]]
+        uv = self.to_2d(self.rep[group], point_B[None])[0]
+        # A member's box is no farther than the member: only those whose box is nearer than
+        # the member of the nearest box can be nearest (a facade of eight storeys has hundreds)
+        lo, hi = self.outline_bounds[members, :2], self.outline_bounds[members, 2:]
+        box_distance = np.linalg.norm(np.maximum(np.maximum(lo - uv, uv - hi), 0.0), axis=1)
+        p = shapely.points(uv)
+        bound = shapely.distance(self.outline[members[np.argmin(box_distance)]], p)
+        near = members[box_distance <= bound + 1e-9]
+        return self.ids[near[np.argmin(shapely.distance(self.outline[near], p))]]
 
     def observation_faces(self, face: str | None, centres_B: list[np.ndarray | None]) -> list[str | None]:
         """The face behind each observation of a landmark matched to `face` (its group)."""

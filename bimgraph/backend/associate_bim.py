@@ -132,10 +132,12 @@ class BimAssociator:
         self.cfg = cfg
         self.gate = chi2.ppf(cfg.gate_probability, 3)
         self.cos_max = np.cos(np.radians(cfg.max_normal_angle_deg))
-        # the as-built tolerance about each face's centre, in the residual of that face
-        self.tolerance = np.array([face_tolerance_cov(basis, centre, np.radians(cfg.face_normal_deg), cfg.face_offset_m,
-                                                     np.radians(cfg.face_plumb_deg))
-                                   for basis, centre in zip(faces.bases, faces.centres)]).reshape(-1, 3, 3)
+        # the as-built tolerance about each face's centre, in the residual of that face: for
+        # the faces that stand for their group, which alone are scored (NaN for the others)
+        self.tolerance = np.full((len(faces), 3, 3), np.nan)
+        for row in faces.rep:
+            self.tolerance[row] = face_tolerance_cov(faces.bases[row], faces.centres[row], np.radians(cfg.face_normal_deg),
+                                                     cfg.face_offset_m, np.radians(cfg.face_plumb_deg))
 
     def eligible(self, area: float, n_observations: int, last_attempt: int = 0) -> bool:
         """Worth matching: big enough, seen often enough, and seen more since the last try (a

@@ -126,6 +126,16 @@ def progress_bar(out, *columns):
     return Progress(*columns, console=out, transient=True, disable=not out.is_terminal)
 
 
+@contextlib.contextmanager
+def import_progress(out, title: str):
+    """A progress bar for an IFC import; yields the `progress(what, done, total)` to give it."""
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
+
+    with progress_bar(out, TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()) as bar:
+        task = bar.add_task(title, total=None)
+        yield lambda what, done, total: bar.update(task, description=f"{title}: {what}", completed=done, total=total)
+
+
 @app.command()
 @friendly_errors
 def config(
@@ -165,7 +175,9 @@ def bim(
     cfg = load_config(config_file)
     out = console()
     # (a warning is one line, however long: a log may be grepped by GlobalId)
-    plane_map, report = import_ifc(model, cfg.bim, log=lambda text: out.print(text, soft_wrap=True, highlight=False, markup=False))
+    with import_progress(out, f"bimgraph bim {model.name}") as progress:
+        plane_map, report = import_ifc(model, cfg.bim, log=lambda text: out.print(text, soft_wrap=True, highlight=False, markup=False),
+                                       progress=progress)
     save_plane_map(plane_map, output)
     out.print(report)
 
@@ -270,7 +282,8 @@ def run(
         check_viewer_can_open()
     out = console()
     seeds = [parse_seed(s) for s in seed]
-    inputs = load_inputs(sequence, bim_model, cfg)
+    with import_progress(out, "bimgraph run: importing the BIM model") as progress:
+        inputs = load_inputs(sequence, bim_model, cfg, progress)
     viewer = listener = None
     if rrd is not None or spawn:
         from bimgraph.viewer.session import follow_run

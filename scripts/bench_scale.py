@@ -13,6 +13,11 @@ view's. The walk is the same length on every model: what grows is the map around
 
 from __future__ import annotations
 
+import os
+
+# one BLAS thread, as `bimgraph` runs (see scripts/bench_backend.py); before numpy loads
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 import argparse
 import dataclasses
 import json

@@ -235,3 +235,19 @@ def test_an_output_that_cannot_be_written_is_one_line(tmp_path, target):
     result = CliRunner().invoke(app, ["bim", str(model), "-o", str(out)])
     assert_one_line_error(result, 2, str(out))
     assert not list(tmp_path.glob("*.tmp")) and (tmp_path / "a_file").read_text() == ""
+
+
+def test_the_import_reports_its_progress(written):
+    """Each stage counts up to its total, one step per wall or face (a building of a thousand
+    walls imports for a minute)."""
+    heard = []
+    plane_map, _ = import_ifc(written, BimImportConfig(), progress=lambda *args: heard.append(args))
+    stages = list(dict.fromkeys(what for what, _, _ in heard))
+    assert stages == ["walls' side faces", "openings cut out", "faces split per room"]
+    walls = len(house().walls)
+    for what in stages:
+        counts = [(done, total) for w, done, total in heard if w == what]
+        total = counts[0][1]
+        assert counts == [(done, total) for done in range(1, total + 1)]
+    assert [t for w, _, t in heard if w == "walls' side faces"][0] == walls
+    assert len(plane_map.faces) >= [t for w, _, t in heard if w == "faces split per room"][0]

@@ -27,13 +27,14 @@ from bimgraph.geometry import inverse, normalise_plane, plane_from_frame, pose_f
 from bimgraph.sequence.format import Keyframe, SequenceMeta, load_meta, load_sequence
 
 
-def load_model(path: Path, cfg: Config) -> PlaneMap:
-    """A BIM model: an IFC file goes through the importer, a JSON file is a plane map."""
+def load_model(path: Path, cfg: Config, progress=None) -> PlaneMap:
+    """A BIM model: an IFC file goes through the importer (`progress` as `import_ifc`'s), a
+    JSON file is a plane map."""
     path = Path(path)
     if path.suffix.lower() == ".ifc":
         from bimgraph.bim.ifc_import import import_ifc
 
-        return import_ifc(path, cfg.bim)[0]
+        return import_ifc(path, cfg.bim, progress=progress)[0]
     if path.suffix.lower() == ".json":
         return load_plane_map(path)
     raise InputError(f"{path}: not a BIM model (expected .ifc or a .json plane map)")
@@ -121,12 +122,13 @@ class Inputs:
     initial: Alignment
 
 
-def load_inputs(seq_dir: Path, bim: Path | None, cfg: Config) -> Inputs:
-    """Load them once, so that the pipeline and a viewer following it share them."""
+def load_inputs(seq_dir: Path, bim: Path | None, cfg: Config, progress=None) -> Inputs:
+    """Load them once, so that the pipeline and a viewer following it share them (`progress`:
+    the IFC import's, see `load_model`)."""
     seq_dir = Path(seq_dir)
     meta = load_meta(seq_dir)
     model = model_path(seq_dir, meta, bim)
-    plane_map = load_model(model, cfg)
+    plane_map = load_model(model, cfg, progress)
     if not plane_map.faces:
         raise InputError(f"{model}: the BIM model has no wall faces")
     return Inputs(seq_dir, meta, model, plane_map, initial_alignment(meta, cfg))

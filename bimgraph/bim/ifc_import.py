@@ -31,12 +31,15 @@ ORIGIN = ("the IfcBuilding's placement (its local coordinate system; the project
           "coordinate system if there is no IfcBuilding), metres, z up")
 
 
-def import_ifc(path, cfg: BimImportConfig, log=None):
+def import_ifc(path, cfg: BimImportConfig, log=None, progress=None):
     """Read the IFC model at `path` into a PlaneMap in frame B (see ORIGIN); returns
     (plane_map, report) where report is a rich Table of counts and timing. A file that is no
     IFC or a damaged one raises FormatError, a sound one without walls InputError; a wall (or
-    slab) whose geometry fails or gives no face is reported through `log` and skipped."""
+    slab) whose geometry fails or gives no face is reported through `log` and skipped.
+    `progress(what, done, total)` hears each wall and each face as they are done (a building
+    of a thousand walls takes a minute or so)."""
     log = log or (lambda message: None)
+    progress = progress or (lambda what, done, total: None)
     started = time.perf_counter()
     path = Path(path)
     model, problems = open_model(path)
@@ -67,10 +70,10 @@ def import_ifc(path, cfg: BimImportConfig, log=None):
     for wall in curtain_walls:
         log(f"warning: curtain wall {wall.GlobalId} ({wall.Name}): not imported")
 
-    wall_faces = _wall_faces(reader, [w for w in walls if w.id() in meshes], meshes, voids, solids, cfg, log)
+    wall_faces = _wall_faces(reader, [w for w in walls if w.id() in meshes], meshes, voids, solids, cfg, log, progress)
     unreadable = [w for w in walls if w.id() in meshes and w.id() in reader.unreadable]
     skipped["walls skipped (geometry unreadable)"] = _skip(log, "wall", unreadable, "", reader.unreadable)
-    sections = _split_per_room(reader, wall_faces, meshes, spaces, solids, cfg)
+    sections = _split_per_room(reader, wall_faces, meshes, spaces, solids, cfg, progress)
     if reader.unread_boundaries:
         log(f"warning: {reader.unread_boundaries} space boundaries could not be read, skipped (their rooms are found by their solids)")
     # Whatever takes a wall's faces (a sliver, none vertical or along its axis, all below the
@@ -98,23 +101,24 @@ def _skip(log, kind: str, elements, reason: str, reasons: dict[int, str] | None 
     return len(elements)
 
 
-def _wall_faces(reader: ModelReader, walls, meshes, voids, solids, cfg, log) -> list[tuple[object, F.Face, float]]:
+def _wall_faces(reader: ModelReader, walls, meshes, voids, solids, cfg, log, progress) -> list[tuple[object, F.Face, float]]:
     """[(wall, face, depth behind the face)] for every side face, openings cut out (`voids`:
     wall id -> its openings, `solids`: their meshes by id). A wall whose geometry cannot be
     read goes into `reader.unreadable`, with why."""
     angle_tol, axis_tol = np.radians(cfg.coplanar_angle_deg), np.radians(cfg.axis_tol_deg)
     per_wall = {}
-    for wall in walls:
+    for done, wall in enumerate(walls, start=1):
         try:
             per_wall[wall.id()] = (wall, _sides(reader, wall, meshes[wall.id()], cfg, angle_tol, axis_tol))
         except Exception as err:  # a geometry this reader cannot follow: the rest goes on
             reader.unreadable[wall.id()] = (f"its geometry cannot be read "
                                             f"({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})")
+        progress("walls' side faces", done, len(walls))
     for opening in (o for wall, _ in per_wall.values() for o in voids[wall.id()] if o.id() not in solids):
         log(f"warning: opening {opening.GlobalId} has no geometry; its wall keeps the area")
 
     out = []
-    for wall, sides in per_wall.values():
+    for done, (wall, sides) in enumerate(per_wall.values(), start=1):
         openings = [m for o in voids[wall.id()] for m in solids.get(o.id(), [])]
         for face, depth in sides:
             holes = [F.plane_section(o.V, o.T, face, cfg.opening_slice_depth_m) for o in openings]
@@ -123,6 +127,7 @@ def _wall_faces(reader: ModelReader, walls, meshes, voids, solids, cfg, log) -> 
                 face.region = face.region.difference(shapely.union_all(holes, grid_size=cfg.grid_m), grid_size=cfg.grid_m)
             if face.region.area >= cfg.min_face_area_m2:
                 out.append((wall, face, depth))
+        progress("openings cut out", done, len(per_wall))
     return out
 
 
@@ -144,7 +149,7 @@ def _sides(reader: ModelReader, wall, mesh, cfg, angle_tol: float, axis_tol: flo
     return [(face, F.depth_behind(face, found, angle_tol)) for face in found]
 
 
-def _split_per_room(reader: ModelReader, wall_faces, meshes, spaces, solids, cfg) -> list[BimFace]:
+def _split_per_room(reader: ModelReader, wall_faces, meshes, spaces, solids, cfg, progress) -> list[BimFace]:
     """Sections of the wall faces per room (`spaces`, with their meshes in `solids`)."""
     names = {s.GlobalId: " ".join(n for n in (s.Name, s.LongName) if n) for s in spaces}
     guids = {s.id(): s.GlobalId for s in spaces}
@@ -158,7 +163,7 @@ def _split_per_room(reader: ModelReader, wall_faces, meshes, spaces, solids, cfg
     angle_tol = np.radians(cfg.vertical_tol_deg)
     sections = []
     counter = Counter()
-    for wall, face, depth in wall_faces:
+    for done, (wall, face, depth) in enumerate(wall_faces, start=1):
         if junctions is None:
             in_front = rooms.claims(face, cfg.probe_distance_m)
             claims = boundary_claims(face, depth, boundaries.get(wall.GlobalId, []), cfg.boundary_on_face_m,
@@ -171,6 +176,7 @@ def _split_per_room(reader: ModelReader, wall_faces, meshes, spaces, solids, cfg
         for region, claim in pieces:
             space = Space(guid=claim.space_guid, name=names.get(claim.space_guid, "")) if claim.space_guid else None
             sections += _sections(reader, wall, face, region, cfg, counter, space=space, split=claim.method)
+        progress("faces split per room", done, len(wall_faces))
     return sections
 
 

@@ -282,7 +282,7 @@ def run(
         check_viewer_can_open()
     out = console()
     seeds = [parse_seed(s) for s in seed]
-    with import_progress(out, "bimgraph run: importing the BIM model") as progress:
+    with import_progress(out, "bimgraph run: reading the BIM model") as progress:
         inputs = load_inputs(sequence, bim_model, cfg, progress)
     viewer = listener = None
     if rrd is not None or spawn:
@@ -354,7 +354,7 @@ def evaluate(
     from bimgraph.evaluation.runs import Evaluation, load_estimate, model_of_runs, run_timings, summary_row, write_metrics
 
     cfg = load_config(config_file)
-    evaluation = Evaluation(gt, cfg, bim_model or model_of_runs(outdirs))
+    evaluation = Evaluation(gt, cfg, bim_model or model_of_runs(outdirs, gt))
     # every run read, validated and measured before any metrics.json is written
     estimates = {str(d): load_estimate(d) for d in outdirs}
     timings = {str(d): run_timings(d) for d in outdirs}

@@ -289,6 +289,22 @@ def test_a_building_map_is_tested_near_the_walk_only_and_counted_whole():
     assert alone == {face_id: n for face_id, n in counts.items() if face_id in alone}
 
 
+def test_a_face_near_the_end_of_the_range_is_in_view_and_one_beyond_is_not():
+    """A 1 m panel facing the camera 4.7 m ahead (every sample within the 5 m range) is in
+    view; moved 0.5 m farther it is not; a pose not known (NaN) sees nothing and takes
+    nothing from the others."""
+    assert CFG.visibility_max_range_m == 5.0
+
+    def panel(x):
+        return PlaneMap(faces=[BimFace(id="panel", wall_guid="0K1h3Qe3j8Nuv5bzvOkWdm", normal=(-1, 0, 0), offset=x,
+                                       polygon=[(x, 1.5, 0.75), (x, 2.5, 0.75), (x, 2.5, 1.75), (x, 1.5, 1.75)])])
+
+    T = camera_looking((1.5, 2.0, 1.25), 0.0)
+    unknown = np.full((4, 4), np.nan)
+    assert expected_view_counts(panel(6.2), np.stack([T, unknown, T]), K, 640, 480, CFG) == {"panel": 2}
+    assert expected_view_counts(panel(6.7), np.stack([T]), K, 640, 480, CFG) == {"panel": 0}
+
+
 def test_walls_of_another_storey_are_not_in_view_through_the_floor():
     """A camera in the room looks down toward a wall of the storey below: a map of walls alone
     gets a floor at each storey's elevation, which hides it (before, such walls of every

@@ -191,3 +191,18 @@ def test_eval_measures_against_the_model_the_run_used(finished_run, tmp_path):
     alt.unlink()
     assert_one_line_error(CliRunner().invoke(app, ["eval", str(run), "--gt", str(seq)]), 2,
                           f"{run}: the run's BIM model {alt} is not there; give it with --bim")
+
+
+def test_a_run_moved_with_its_sequence_finds_its_model_there(finished_run, tmp_path):
+    """summary.json names the model by its absolute path, inside the sequence: a run copied
+    with its sequence to another folder is evaluated against the sequence's copy."""
+    seq, _ = finished_run
+    before, after = tmp_path / "before", tmp_path / "after"
+    shutil.copytree(seq, before / "seq")
+    assert CliRunner().invoke(app, ["run", str(before / "seq"), "-o", str(before / "out")]).exit_code == 0
+    shutil.move(before, after)
+    assert json.loads((after / "out" / "summary.json").read_text())["model"] == str((before / "seq" / "planes.json").resolve())
+    result = CliRunner().invoke(app, ["eval", str(after / "out"), "--gt", str(after / "seq"), "--no-baselines"])
+    assert result.exit_code == 0, result.output
+    result = CliRunner().invoke(app, ["view", str(after / "out"), "--sequence", str(after / "seq"), "--rrd", str(tmp_path / "x.rrd")])
+    assert result.exit_code == 0, result.output

@@ -49,17 +49,23 @@ def model_path(root: Path, meta: SequenceMeta, bim: Path | None) -> Path:
     return p if p.is_absolute() else Path(root) / p
 
 
-def run_model(out_dir: Path) -> Path | None:
+def run_model(out_dir: Path, seq_dir: Path | None = None) -> Path | None:
     """The BIM model a finished run used (its summary.json names it), to read its outputs
     against: a run given `--bim planes.json` names faces that the sequence's own model may
-    not have, and re-importing that IFC can take long. None if the run names none."""
-    summary = Path(out_dir) / SUMMARY
-    named = load_summary(summary).model if summary.is_file() else None
-    if named is None:
+    not have, and re-importing that IFC can take long. None if the run names none. A run
+    moved with its sequence (to `seq_dir`) finds a model inside the sequence there."""
+    summary_path = Path(out_dir) / SUMMARY
+    summary = load_summary(summary_path) if summary_path.is_file() else None
+    if summary is None or summary.model is None:
         return None
-    if not Path(named).is_file():
-        raise InputError(f"{out_dir}: the run's BIM model {named} is not there; give it with --bim")
-    return Path(named)
+    named = Path(summary.model)
+    if named.is_file():
+        return named
+    if seq_dir is not None and summary.sequence is not None and named.is_relative_to(summary.sequence):
+        moved = Path(seq_dir) / named.relative_to(summary.sequence)
+        if moved.is_file():
+            return moved
+    raise InputError(f"{out_dir}: the run's BIM model {named} is not there; give it with --bim")
 
 
 def initial_alignment(meta: SequenceMeta, cfg: Config) -> Alignment:

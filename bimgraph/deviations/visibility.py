@@ -107,6 +107,7 @@ def expected_view_counts(plane_map: PlaneMap, T_B_C: np.ndarray, K: np.ndarray, 
     at which at least `cfg.visibility_min_area_m2` of it was in view and not hidden."""
     faces = plane_map.faces
     T_B_C = np.asarray(T_B_C).reshape(-1, 4, 4)
+    T_B_C = T_B_C[np.isfinite(T_B_C).all(axis=(1, 2))]  # (a pose not known sees nothing)
     # Only the faces near the walk are sampled and hide others: a building's map has thousands.
     reach = _in_reach(faces, T_B_C[:, :3, 3], cfg.visibility_max_range_m + 0.1) if len(T_B_C) else np.zeros(0, dtype=int)
     nearby = [faces[i] for i in reach]

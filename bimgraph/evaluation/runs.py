@@ -37,10 +37,11 @@ def load_estimate(out_dir: Path) -> Estimate:
     return Estimate(list(T_B_C), pose_from_tum(extrinsic.T_B_S), associations, np.asarray(extrinsic.covariance), stamps)
 
 
-def model_of_runs(out_dirs) -> Path | None:
-    """The BIM model the runs used (`pipeline.run_model`); None if they name none. Runs on
-    different models are refused: their associations name faces of different maps."""
-    used = {m for d in out_dirs if (m := run_model(d)) is not None}
+def model_of_runs(out_dirs, seq_dir: Path) -> Path | None:
+    """The BIM model the runs of the sequence at `seq_dir` used (`pipeline.run_model`); None
+    if they name none. Runs on different models are refused: their associations name faces
+    of different maps."""
+    used = {m for d in out_dirs if (m := run_model(d, seq_dir)) is not None}
     if len(used) > 1:
         raise InputError(f"the runs used different BIM models ({', '.join(sorted(map(str, used)))}); "
                          "give the one to measure against with --bim")

@@ -76,7 +76,7 @@ def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | N
             raise InputError(f"{out_dir}: the run does not name its sequence; give it with --sequence SEQDIR")
         seq_dir = Path(named)
     seq = load_sequence(seq_dir)
-    plane_map = load_model(bim or run_model(out_dir) or model_path(seq.root, seq.meta, None), cfg)
+    plane_map = load_model(bim or run_model(out_dir, seq.root) or model_path(seq.root, seq.meta, None), cfg)
     stamps, T_B_C = read_tum(out_dir / TRAJECTORY_BIM)
     stamps_slam, T_S_C = read_tum(out_dir / TRAJECTORY_SLAM)
     if len(stamps) == 0:

@@ -242,9 +242,12 @@ def simulate(
     opts = SimOptions(output=output, scenario=scenario, ifc=ifc, sensor=sensor, keyframes=keyframes, seed=seed)
     opts.check()
     out = console()
-    with progress_bar(out) as bar:
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
+
+    with progress_bar(out, TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()) as bar:
         task = bar.add_task(f"simulating ({sensor})", total=keyframes)
-        summary = run_simulation(opts, cfg, log=out.print, progress=lambda done, total: bar.update(task, completed=done))
+        summary = run_simulation(opts, cfg, log=out.print, progress=lambda done, total: bar.update(task, completed=done),
+                                 stage=lambda text: bar.update(task, description=f"simulating ({sensor}): {text}"))
     drift = summary["drift"]
     out.print(f"{output}: {summary['keyframes']} keyframes, {summary['planes']} plane detections, "
               f"{summary['distance_m']:.1f} m walked; front-end drift {drift['final_drift_percent']:.2f} % of distance, "

@@ -113,16 +113,20 @@ def _as_built_record(storey: world.Storey, deviations, elements) -> dict:
 
 
 def simulate(opts: SimOptions, cfg: Config, log: Callable[[str], None] = lambda m: None,
-             progress: Callable[[int, int], None] = lambda done, total: None) -> dict:
+             progress: Callable[[int, int], None] = lambda done, total: None,
+             stage: Callable[[str], None] = lambda text: None) -> dict:
     """Write the sequence folder `opts.output`; returns a summary (counts, drift, timings).
-    A simulation that fails (a truncated IFC, a storey without rooms, Ctrl-C) removes the
-    folder if it made it: an empty or half-written sequence folder would stand as a sequence."""
+    `progress(done, total)` hears each keyframe, `stage(what)` each step before them (on a
+    building of a thousand walls they take a minute). A simulation that fails (a truncated
+    IFC, a storey without rooms, Ctrl-C) removes the folder if it made it: an empty or
+    half-written sequence folder would stand as a sequence."""
     opts.check()
     with new_folder(opts.output):
-        return _simulate(opts, cfg, log, progress)
+        return _simulate(opts, cfg, log, progress, stage)
 
 
-def _simulate(opts: SimOptions, cfg: Config, log: Callable[[str], None], progress: Callable[[int, int], None]) -> dict:
+def _simulate(opts: SimOptions, cfg: Config, log: Callable[[str], None], progress: Callable[[int, int], None],
+              stage: Callable[[str], None]) -> dict:
     from bimgraph.bim.ifc_import import import_ifc
     from bimgraph.sim.render import DepthRenderer
 
@@ -150,8 +154,11 @@ def _simulate(opts: SimOptions, cfg: Config, log: Callable[[str], None], progres
         model_path = Path(opts.ifc).resolve()
         model_ref = str(model_path)
     # Slab tops tell where the storey's floor is (inside); wall face ids do not depend on them.
-    plane_map, _ = import_ifc(model_path, cfg.bim.model_copy(update={"include_slabs": True}), log=log)
+    stage("importing the model")
+    plane_map, _ = import_ifc(model_path, cfg.bim.model_copy(update={"include_slabs": True}), log=log,
+                              progress=lambda what, done, total: stage(f"importing the model: {what} {done}/{total}"))
     lap("import")
+    stage("building the storey as built")
 
     rng_world, rng_clutter, rng_walk, rng_frontend, rng_observe, rng_align = (
         np.random.default_rng(s) for s in np.random.SeedSequence(opts.seed).spawn(6))
@@ -174,12 +181,14 @@ def _simulate(opts: SimOptions, cfg: Config, log: Callable[[str], None], progres
     mesh = world.triangulate(elements)
     lap("world")
 
+    stage("planning the walk")
     occupied = occupancy.obstacles(grid, world.triangulate(level + items), storey.floor_z)
     free, distance = occupancy.free_space(occupied, inside, grid.cell, sim.trajectory.clearance_m)
     walk = plan_trajectory(free, distance, grid, storey.floor_z, sim.trajectory, opts.keyframes, rng_walk)
     front = simulate_frontend(walk.T_B_C, sim.frontend, rng_frontend)
     T_B_S_init, yaw_error, shift = initial_alignment(front.T_B_S, sim.initial_rot_error_deg, sim.initial_trans_error_m, rng_align)
     lap("trajectory")
+    stage("observing")
 
     camera = Camera(width=sim.width, height=sim.height, fx=sim.fx, fy=sim.fy,
                     cx=(sim.width - 1) / 2, cy=(sim.height - 1) / 2)

@@ -392,3 +392,13 @@ def test_the_storey_to_walk_is_chosen_on_the_command_line(tmp_path, ifc_samples)
     assert result.exit_code == 2
     assert result.stderr.strip().splitlines() == ["error: no walls on storey 'Roof'; storeys with walls: Level 0"]
     assert not (tmp_path / "none").exists()
+
+
+def test_simulate_says_each_step_before_the_keyframes(tmp_path):
+    steps, done = [], []
+    simulate(SimOptions(output=tmp_path / "seq", scenario="site", keyframes=5, seed=1), Config(),
+             progress=lambda k, total: done.append((k, total)), stage=steps.append)
+    firsts = list(dict.fromkeys(step.split(":")[0] for step in steps))
+    assert firsts == ["importing the model", "building the storey as built", "planning the walk", "observing"]
+    assert "importing the model: faces split per room 1/" in " ".join(steps)
+    assert done == [(k, 5) for k in range(1, 6)]

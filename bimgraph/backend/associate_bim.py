@@ -51,6 +51,10 @@ class FaceMatch:
     score: float  # squared Mahalanobis distance
 
 
+# a wall cut in more sections than this has them prefiltered by their boxes (`member_at`)
+_MANY_SECTIONS = 16
+
+
 class FaceIndex:
     """The plane map, stacked for vectorised scoring. Coplanar faces (a wall split per room,
     collinear walls) form a group: one landmark may span several of them, so a landmark is
@@ -105,14 +109,16 @@ class FaceIndex:
         if len(members) == 1:
             return self.ids[members[0]]
         uv = self.to_2d(self.rep[group], point_B[None])[0]
-        # A member's box is no farther than the member: only those whose box is nearer than
-        # the member of the nearest box can be nearest (a facade of eight storeys has hundreds)
-        lo, hi = self.outline_bounds[members, :2], self.outline_bounds[members, 2:]
-        box_distance = np.linalg.norm(np.maximum(np.maximum(lo - uv, uv - hi), 0.0), axis=1)
         p = shapely.points(uv)
-        bound = shapely.distance(self.outline[members[np.argmin(box_distance)]], p)
-        near = members[box_distance <= bound + 1e-9]
-        return self.ids[near[np.argmin(shapely.distance(self.outline[near], p))]]
+        if len(members) > _MANY_SECTIONS:
+            # A member's box is no farther than the member: only those whose box is nearer
+            # than the member of the nearest box can be nearest (a facade of eight storeys
+            # has hundreds; for a few, the test costs more than it saves)
+            lo, hi = self.outline_bounds[members, :2], self.outline_bounds[members, 2:]
+            box_distance = np.linalg.norm(np.maximum(np.maximum(lo - uv, uv - hi), 0.0), axis=1)
+            bound = shapely.distance(self.outline[members[np.argmin(box_distance)]], p)
+            members = members[box_distance <= bound + 1e-9]
+        return self.ids[members[np.argmin(shapely.distance(self.outline[members], p))]]
 
     def observation_faces(self, face: str | None, centres_B: list[np.ndarray | None]) -> list[str | None]:
         """The face behind each observation of a landmark matched to `face` (its group)."""

@@ -297,6 +297,7 @@ def run(
             task = bar.add_task(f"bimgraph run ({mode})", total=None)
             run_backend(sequence, output, mode=mode, bim=bim_model, config=cfg, seeds=seeds, oracle=oracle,
                         listener=listener, progress=lambda done, total: bar.update(task, completed=done), inputs=inputs,
+                        log=lambda text: out.print(text, soft_wrap=True, highlight=False, markup=False),
                         stage=lambda text: bar.update(task, description=f"bimgraph run ({mode}): {text}"))
     finally:
         if viewer is not None:  # an interrupted run still leaves a complete recording

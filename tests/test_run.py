@@ -264,6 +264,26 @@ def test_seed_alignment_and_bad_seed(world, tmp_path):
     assert_one_line_error(result, 4, "no plane 99")
 
 
+def test_a_run_without_an_alignment_says_so_and_why_nothing_matched(world, tmp_path):
+    """A sequence of the user's own (`bimgraph planes -t` writes sequence.json without one):
+    T_B_S starts at identity, 2 degrees and 20 cm, far from this scene's; the run warns before
+    it starts and its summary asks after the alignment when no landmark matched a face. With
+    seed pairs it does not warn."""
+    scene, root = world
+    seq = tmp_path / "seq"
+    save_sequence(Sequence(root=seq, meta=SequenceMeta(name="own", model=str(root / "planes.json"), sensor="planes"),
+                           keyframes=scene.keyframes))
+    result = run(seq, "-o", tmp_path / "out", "--mode", "offline")
+    assert result.exit_code == 0, result.output
+    assert result.output.startswith(f"warning: {seq / 'sequence.json'} gives no initial_alignment and no --seed pair")
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["matched_landmarks"] == 0
+    assert "is the initial alignment" in " ".join(result.output.split())
+    seeds = [f"0:{i}:{scene.truth[(0, i)]}" for i in range(len(scene.keyframes[0].planes)) if scene.truth[(0, i)]]
+    result = run(seq, "-o", tmp_path / "seeded", "--mode", "offline", *sum((["--seed", s] for s in seeds), []))
+    assert result.exit_code == 0, result.output
+    assert "warning" not in result.output and "is the initial alignment" not in " ".join(result.output.split())
+
+
 def test_summary_lists_the_deviating_walls(world, tmp_path):
     """The printed summary names each wall the report finds deviating, with its offset."""
     _, root = world

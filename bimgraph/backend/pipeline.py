@@ -162,12 +162,12 @@ def _remove(out_dir: Path, names) -> None:
 def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = None, config: Config | None = None,
         seeds: list[tuple[int, int, str]] = (), oracle: bool = False, listener: Listener | None = None,
         progress: Callable[[int, int | None], None] | None = None, inputs: Inputs | None = None,
-        stage: Callable[[str], None] | None = None) -> Results | None:
+        stage: Callable[[str], None] | None = None, log: Callable[[str], None] | None = None) -> Results | None:
     """Run the backend on a sequence folder and write the outputs to `out_dir`. The sequence
     is read and validated whole first; online runs then process it keyframe by keyframe,
     writing as they go, and return None. `inputs`, if given, are those of
     `load_inputs(seq_dir, bim, config)`; `progress(keyframes done, total)` hears each online
-    keyframe and `stage(what)` the long step after the last one."""
+    keyframe, `stage(what)` the long step after the last one, and `log(line)` a warning."""
     cfg = config or Config()
     seq_dir = Path(seq_dir)
     if mode not in ("online", "offline"):
@@ -189,6 +189,11 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
         raise InputError(f"{seq_dir}: no keyframe has a plane detection{hint}")
     if seeds:
         initial = seed_alignment(sequence.keyframes, plane_map, list(seeds), cfg, initial)
+    elif meta.initial_alignment is None and log is not None:
+        noise = cfg.backend.noise
+        log(f"warning: {seq_dir / 'sequence.json'} gives no initial_alignment and no --seed pair was given: T_B_S "
+            f"starts at identity, trusted to {noise.extrinsic_rot_deg:g} deg and {noise.extrinsic_trans_m:g} m "
+            "(backend.noise.extrinsic_*), so walls are matched only if the front-end's frame lies there already")
     ensure_folder(out_dir)  # (before the work, not after it; after everything the input can refuse)
     clear_previous_run(out_dir)
     if mode == "offline":

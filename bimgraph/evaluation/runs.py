@@ -119,7 +119,9 @@ def run_summary(out_dir: Path) -> list[tuple[str, str]]:
                              for u in extrinsic.unobservable) or "none"
     rows = [("mode", summary.mode + ("" if summary.finished else " (stopped early: outputs up to the last keyframe written)")),
             ("keyframes", str(summary.keyframes)),
-            ("landmarks", f"{summary.landmarks}, {summary.matched_landmarks} matched to {summary.matched_faces} BIM faces"),
+            ("landmarks", f"{summary.landmarks}, {summary.matched_landmarks} matched to {summary.matched_faces} BIM faces"
+                          + ("" if summary.matched_landmarks or not summary.keyframes else
+                             " (is the initial alignment, sequence.json's or the --seed pairs', within its sigmas?)")),
             ("T_B_S", f"position {np.round(T_B_S[:3, 3], 3).tolist()} m, heading {yaw:.2f} deg"),
             ("T_B_S sigma", f"position {sigma_cm} cm, rotation {sigma_deg} deg"),
             ("unobservable", unobservable)]

@@ -117,21 +117,20 @@ def console():
     return Console(stderr=True)
 
 
-def progress_bar(out, *columns):
-    """A transient progress bar on `out`, shown only on a terminal: elsewhere (a log file, a
-    pipe) rich still ends it with a newline, a blank line before whatever follows it, such as
-    an error that must be one line."""
-    from rich.progress import Progress
+def progress_bar(out):
+    """A transient progress bar on `out` (what, bar, done of total, time), shown only on a
+    terminal: elsewhere (a log file, a pipe) rich still ends it with a newline, a blank line
+    before whatever follows it, such as an error that must be one line."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    return Progress(*columns, console=out, transient=True, disable=not out.is_terminal)
+    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                    console=out, transient=True, disable=not out.is_terminal)
 
 
 @contextlib.contextmanager
 def import_progress(out, title: str):
     """A progress bar for an IFC import; yields the `progress(what, done, total)` to give it."""
-    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
-
-    with progress_bar(out, TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()) as bar:
+    with progress_bar(out) as bar:
         task = bar.add_task(title, total=None)
         yield lambda what, done, total: bar.update(task, description=f"{title}: {what}", completed=done, total=total)
 
@@ -242,9 +241,7 @@ def simulate(
     opts = SimOptions(output=output, scenario=scenario, ifc=ifc, sensor=sensor, keyframes=keyframes, seed=seed)
     opts.check()
     out = console()
-    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
-
-    with progress_bar(out, TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()) as bar:
+    with progress_bar(out) as bar:
         task = bar.add_task(f"simulating ({sensor})", total=keyframes)
         summary = run_simulation(opts, cfg, log=out.print, progress=lambda done, total: bar.update(task, completed=done),
                                  stage=lambda text: bar.update(task, description=f"simulating ({sensor}): {text}"))
@@ -273,8 +270,6 @@ def run(
 
     Example: bimgraph run seq -o out --rrd out/run.rrd; rerun out/run.rrd
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
-
     from bimgraph.backend.pipeline import load_inputs, parse_seed, run as run_backend
     from bimgraph.config import load_config
 
@@ -293,7 +288,7 @@ def run(
 
         viewer, listener = follow_run(inputs, cfg, rrd=rrd, spawn=spawn)
     try:
-        with progress_bar(out, TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()) as bar:
+        with progress_bar(out) as bar:
             task = bar.add_task(f"bimgraph run ({mode})", total=None)
             run_backend(sequence, output, mode=mode, bim=bim_model, config=cfg, seeds=seeds, oracle=oracle,
                         listener=listener, progress=lambda done, total: bar.update(task, completed=done), inputs=inputs,

@@ -69,7 +69,9 @@ def run_model(out_dir: Path, seq_dir: Path | None = None) -> Path | None:
 
 
 def initial_alignment(meta: SequenceMeta, cfg: Config) -> Alignment:
-    """The sequence's manual alignment; identity with the configured (wide) uncertainty if none."""
+    """The sequence's manual alignment; if none, identity with the configured uncertainty
+    (`backend.noise.extrinsic_*`: 2 degrees and 20 cm, so only a front-end whose S nearly is B
+    gets its walls matched; `run` warns)."""
     noise = cfg.backend.noise
     if meta.initial_alignment is None:
         alignment = Alignment.from_sigmas(np.eye(4), noise.extrinsic_rot_deg, noise.extrinsic_trans_m)

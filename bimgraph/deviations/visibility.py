@@ -96,8 +96,8 @@ def _in_reach(faces: Sequence[BimFace], centres_B: np.ndarray, reach_m: float) -
     """Indices of the faces whose bounding box comes within `reach_m` of the box of the camera
     centres: no other face holds a point in range of a camera, or lies on the way to one."""
     lo, hi = centres_B.min(axis=0) - reach_m, centres_B.max(axis=0) + reach_m
-    boxes = [np.asarray(face.polygon, dtype=float) for face in faces]
-    return np.array([i for i, corners in enumerate(boxes) if (corners.max(axis=0) >= lo).all() and (corners.min(axis=0) <= hi).all()],
+    corners = [np.asarray(face.polygon, dtype=float) for face in faces]
+    return np.array([i for i, c in enumerate(corners) if (c.max(axis=0) >= lo).all() and (c.min(axis=0) <= hi).all()],
                     dtype=int)
 
 
@@ -111,9 +111,9 @@ def expected_view_counts(plane_map: PlaneMap, T_B_C: np.ndarray, K: np.ndarray, 
     # Only the faces near the walk are sampled and hide others: a building's map has thousands.
     reach = _in_reach(faces, T_B_C[:, :3, 3], cfg.visibility_max_range_m + 0.1) if len(T_B_C) else np.zeros(0, dtype=int)
     nearby = [faces[i] for i in reach]
-    counts = np.zeros(len(faces), dtype=int)
     if not nearby:
         return {f.id: 0 for f in faces}  # (a walk outside the building)
+    counts = np.zeros(len(faces), dtype=int)
     samples = sample_faces(nearby, cfg.visibility_grid_m)
     normals = np.asarray([f.normal for f in nearby])[samples.face]
     # (floors beyond the map by the range: a camera farther out sees nothing of it anyway)

@@ -67,9 +67,11 @@ def plane_from_frame(plane_B: np.ndarray, T_A_B: np.ndarray) -> np.ndarray:
     return plane_to_frame(plane_B, inverse(T_A_B))
 
 
-def normal_angle_deg(n1: np.ndarray, n2: np.ndarray) -> float:
-    """Angle between two unit normals in degrees; oriented, so opposite normals give 180."""
-    return float(np.degrees(np.arccos(np.clip(np.dot(n1, n2), -1.0, 1.0))))
+def normal_angle_deg(n1: np.ndarray, n2: np.ndarray):
+    """Angle between two unit normals in degrees; oriented, so opposite normals give 180.
+    `n1` may be a stack of normals (N x 3): then an array, an angle for each."""
+    angle = np.degrees(np.arccos(np.clip(np.dot(n1, n2), -1.0, 1.0)))
+    return float(angle) if np.ndim(angle) == 0 else angle
 
 
 def point_plane_distance(points: np.ndarray, plane: np.ndarray) -> np.ndarray:

@@ -72,10 +72,10 @@ def proximity_candidates(faces: Sequence[BimFace], planes: Sequence[ObservedPlan
         if len(extent_B) == 0:
             continue
         plane_B = plane_to_frame(plane.plane_S(), T_S_B)
-        tilt_deg = np.degrees(np.arccos(np.clip(normals @ plane_B[:3], -1.0, 1.0)))
         distance = np.abs(point_plane_distance(centres, plane_B))
         near = []
-        for i in np.flatnonzero((tilt_deg <= cfg.match_max_tilt_deg) & (distance <= cfg.match_max_offset_m)):
+        passing = (normal_angle_deg(normals, plane_B[:3]) <= cfg.match_max_tilt_deg) & (distance <= cfg.match_max_offset_m)
+        for i in np.flatnonzero(passing):
             if i not in shapes:
                 shapes[i] = face_shape(faces[i])
             if _overlap(shapes[i], extent_B, cfg):

@@ -76,6 +76,8 @@ def test_face_moved_to_another_plane():
         (lambda f: f.update(holes=[[[1, 5, 1], [2, 5, 1]]]), "faces[0].holes[0]: List should have at least 3 items"),
         # corners in a line: no area, whatever area the file gives it
         (lambda f: f.update(polygon=[[0, 5, 0], [1, 5, 0], [2, 5, 0]], area=1.0), "faces[0]: polygon has zero area"),
+        (lambda f: f.update(polygon=[[0, 5, 0], [1, 5, 0], [2, 5, 0]], area=1.0, centre=[1, 5, 0]),
+         "faces[0]: polygon has zero area"),
         (lambda f: f.update(id=""), "faces[0].id: String should have at least 1 character"),
         (lambda f: f.update(centre=[100, 5, 100]), "faces[0]: centre .* is not on the face"),
         (lambda f: f.update(kind="slab_top"), "faces[0]: a slab_top face must be horizontal"),

@@ -28,6 +28,8 @@ Vec3 = tuple[float, float, float]
 
 # A hand-written map is accepted if its points lie this close to the face's plane.
 _ON_PLANE_TOL_M = 0.01
+# A face of less area is one whose corners lie in a line (rounding leaves them a trace of it).
+_MIN_AREA_M2 = 1e-6
 # A slab face's normal is at most about 25 degrees off the vertical.
 _SLAB_MIN_UP = 0.9
 
@@ -77,8 +79,14 @@ class BimFace(BaseModel):
             dist = np.abs(np.asarray(ring) @ n + self.offset).max()
             if dist > _ON_PLANE_TOL_M:
                 raise ValueError(f"{name} lies up to {dist:.3f} m off the plane normal.x + offset = 0")
-        area, centre = polygon_area_centre(self.polygon, self.holes, n)
-        if area <= 0:  # (given an area, too: its corners in a line would break every use of it)
+        # (given an area, its corners must still span one: in a line they would break every use
+        # of it; the outline's vector area says so without building the shape, which was a
+        # quarter of an import and most of loading a map that gives area and centre)
+        if self.area is None or self.centre is None:
+            area, centre = polygon_area_centre(self.polygon, self.holes, n)
+        else:
+            area, centre = outline_area(self.polygon, n), None
+        if area <= _MIN_AREA_M2:
             raise ValueError("polygon has zero area")
         if self.kind != "wall" and abs(n[2]) < _SLAB_MIN_UP:
             raise ValueError(f"a {self.kind} face must be horizontal, its normal is {self.normal}")
@@ -161,6 +169,13 @@ def polygon_area_centre(polygon, holes, normal) -> tuple[float, np.ndarray]:
         return 0.0, np.asarray(polygon[0], dtype=float)
     origin, basis = plane_frame(plane)
     return float(shape.area), origin + basis @ np.array(shape.centroid.coords[0])
+
+
+def outline_area(polygon, normal) -> float:
+    """The area a planar 3-D ring encloses (its vector area along `normal`, the shoelace
+    formula in 3-D; 0 for corners in a line), without its holes."""
+    ring = np.asarray(polygon, dtype=float)
+    return abs(float(np.cross(ring, np.roll(ring, -1, axis=0)).sum(axis=0) @ np.asarray(normal, dtype=float))) / 2
 
 
 def load_plane_map(path: Path) -> PlaneMap:

@@ -4,7 +4,8 @@ on S storeys (`bimgraph.sim.scenarios.office` stacked, written with ifcopenshell
 imported, walked by the simulator on a middle storey, run online and offline against the
 plane map, and shown (the recording saved, as `bimgraph view OUT --rrd`).
 
-Prints per model: walls, faces, import seconds, the online run's seconds (of them the
+Prints per model: walls, faces, import seconds, the simulator's seconds (the model imported
+again, the storey furnished, the walk planned and observed), the online run's seconds (of them the
 deviation report's) and median milliseconds per keyframe, the offline run's seconds, and the
 view's. The walk is the same length on every model: what grows is the map around it.
 
@@ -63,7 +64,7 @@ def main():
     args = parser.parse_args()
 
     table = Table(title=f"bimgraph on generated offices, a {args.keyframes}-keyframe walk on one storey")
-    for column in ("model", "walls", "faces", "import s", "online s", "of it deviations s", "median ms/kf",
+    for column in ("model", "walls", "faces", "import s", "simulate s", "online s", "of it deviations s", "median ms/kf",
                    "offline s", "view s"):
         table.add_column(column, justify="left" if column == "model" else "right")
     for spec in args.models:
@@ -78,14 +79,15 @@ def main():
         plane_map, import_s = timed(lambda: import_ifc(ifc, cfg.bim)[0])
         save_plane_map(plane_map, planes)
         walk = cfg.model_copy(update={"sim": cfg.sim.model_copy(update={"storey": f"Level {storeys // 2}"})})
-        simulate(SimOptions(output=folder / "seq", ifc=ifc, keyframes=args.keyframes, seed=args.seed), walk)
+        _, simulate_s = timed(lambda: simulate(SimOptions(output=folder / "seq", ifc=ifc, keyframes=args.keyframes,
+                                                          seed=args.seed), walk))
         summaries = {}
         for mode in ("online", "offline"):
             run(folder / "seq", folder / mode, mode=mode, bim=planes, config=cfg)
             summaries[mode] = json.loads((folder / mode / "summary.json").read_text())
         _, view_s = timed(lambda: view_outputs(folder / "online", None, cfg, rrd=folder / "view.rrd"))
         online = summaries["online"]
-        table.add_row(spec, str(len(building.walls)), str(len(plane_map.faces)), f"{import_s:.2f}",
+        table.add_row(spec, str(len(building.walls)), str(len(plane_map.faces)), f"{import_s:.2f}", f"{simulate_s:.1f}",
                       f"{online['timings_s']['total_s']:.1f}", f"{online['timings_s']['deviation_report_s']:.1f}",
                       f"{online['latency_ms']['median']:.2f}", f"{summaries['offline']['timings_s']['total_s']:.1f}",
                       f"{view_s:.1f}")

@@ -52,9 +52,10 @@ def _against_wall(walls: list[Element], width: float, floor_z: float, rng):
     return foot, np.column_stack([u, -n, UP])
 
 
-def _free_standing(free_xy, size, floor_z, yaws, rng):
-    """(centre, R_B_O) on a random free cell, turned square to the walls or at random."""
-    xy = free_xy[int(rng.integers(len(free_xy)))]
+def _free_standing(grid: occupancy.Grid, free: np.ndarray, size, floor_z, yaws, rng):
+    """(centre, R_B_O) on a random one of the `free` cells (flat indices), turned square to the
+    walls or at random."""
+    xy = grid.centre(free[int(rng.integers(len(free)))])
     yaw = yaws[int(rng.integers(len(yaws)))] + rng.choice([0.0, 0.0, rng.uniform(0, np.pi)])
     return np.array([*xy, floor_z + size[2] / 2]), Rotation.from_rotvec([0.0, 0.0, yaw]).as_matrix()
 
@@ -72,10 +73,9 @@ def furnish(elements: list[Element], floor_z: float, grid: occupancy.Grid, insid
     walkable, distance = occupancy.free_space(occupied, inside_mask, grid.cell, clearance)
     reach = clearance + 2 * grid.cell
     added: list[Element] = []
-    centres = grid.centres()
     items_occupied = np.zeros_like(occupied)
     for index, (kind, ranges) in enumerate(plan):
-        free_xy = centres[inside_mask & ~occupied]
+        free = np.flatnonzero(inside_mask & ~occupied)
         for _ in range(TRIES):
             size = np.array([rng.uniform(*r) for r in ranges])
             on_wall = kind == "board" or (kind in ("cabinet", "desk") and rng.random() < 0.7)
@@ -91,8 +91,8 @@ def furnish(elements: list[Element], floor_z: float, grid: occupancy.Grid, insid
                 R = Rotation.from_rotvec(-tilt * R[:, 0]).as_matrix() @ R
                 out = -frame[1][:, 1]
                 centre = foot + gap * out + R @ [0.0, -size[1] / 2, size[2] / 2]
-            elif len(free_xy):
-                centre, R = _free_standing(free_xy, size, floor_z, yaws, rng)
+            elif len(free):
+                centre, R = _free_standing(grid, free, size, floor_z, yaws, rng)
             else:
                 break
             item = box_elements(f"{kind}/{index}", "partition" if kind == "partition" else

@@ -28,6 +28,8 @@ TURN_STEP_DEG = 2.0
 # The walking direction is smoothed over this distance, so that the view does not snap at
 # the grid's 45-degree corners.
 HEADING_SMOOTHING_M = 1.0
+# Waypoints are picked from this many candidate cells at a time.
+_WAYPOINT_BLOCK = 1024
 
 
 @dataclass
@@ -68,10 +70,21 @@ class _Planner:
         n = len(self.cells)
         self.graph = sparse.coo_matrix((np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))),
                                        shape=(n, n)).tocsr()
+        self.cell = cell
+        self.longest = float(self.graph.sum())
 
     def path(self, start: int, goal: int) -> np.ndarray:
         """Cells (K x 2) from node `start` to node `goal`."""
-        _, pred = dijkstra(self.graph, directed=False, indices=start, return_predecessors=True)
+        # The search stops at a cost bound, doubled until it reaches the goal: legs go to a
+        # near waypoint, and searching the whole storey for each took 0.2 s on a floor of 128
+        # rooms. No path costs less than the straight line (every weight is at least the
+        # step's length); none costs more than every edge together.
+        bound = 2.0 * self.cell * float(np.hypot(*(self.cells[goal] - self.cells[start]))) + self.cell
+        while True:
+            cost, pred = dijkstra(self.graph, directed=False, indices=start, return_predecessors=True, limit=bound)
+            if np.isfinite(cost[goal]) or bound >= self.longest:
+                break
+            bound *= 2.0
         if pred[goal] < 0 and goal != start:
             return self.cells[[start]]
         nodes = [goal]
@@ -89,11 +102,21 @@ def waypoints(free: np.ndarray, distance: np.ndarray, grid: Grid, spacing: float
     di, dj = np.mgrid[-radius:radius + 1, -radius:radius + 1]
     disk = np.hypot(di, dj) * grid.cell < spacing
     blocked = np.zeros((free.shape[0] + 2 * radius, free.shape[1] + 2 * radius), dtype=bool)
-    chosen = []
-    for i, j in cells[order]:
-        if not blocked[i + radius, j + radius]:
-            chosen.append((i, j))
-            blocked[i:i + 2 * radius + 1, j:j + 2 * radius + 1] |= disk
+    # each cell in that order is taken unless one taken before blocks it: the next one free is
+    # looked for a block of cells at a time (one by one, the loop took 1.5 s over a floor of
+    # 128 rooms)
+    candidates, chosen, start = cells[order], [], 0
+    while start < len(candidates):
+        block = candidates[start:start + _WAYPOINT_BLOCK]
+        free_now = ~blocked[block[:, 0] + radius, block[:, 1] + radius]
+        if not free_now.any():
+            start += len(block)
+            continue
+        first = int(np.argmax(free_now))
+        i, j = block[first]
+        chosen.append((i, j))
+        blocked[i:i + 2 * radius + 1, j:j + 2 * radius + 1] |= disk
+        start += first + 1
     return np.array(chosen)
 
 

@@ -7,13 +7,14 @@ import pytest
 
 from bimgraph.backend import (Alignment, Backend, BimAssociator, FaceIndex, Listener, planes_in_B_independent,
                               run_offline, run_online)
+from bimgraph.backend.depth_tilt import DepthTilt
 from bimgraph.backend.landmarks import Landmark
 from bimgraph.backend.synthetic import make_scene
 from bimgraph.bim.planemap import BimFace, PlaneMap
 from bimgraph.config import BackendConfig
 from bimgraph.evaluation.metrics import association_scores, ate, extrinsic_error
 from bimgraph.geometry import exp_se3, inverse, make_pose, plane_from_frame, pose_to_tum
-from bimgraph.sequence.format import Keyframe, PlaneObservation
+from bimgraph.sequence.format import Camera, Keyframe, PlaneObservation
 
 
 @pytest.fixture(scope="module")
@@ -337,10 +338,12 @@ def test_offline_splits_a_landmark_per_section_in_the_order_it_saw_them():
         ("r20S", [0, 2, 4]), ("r00S", [1]), ("r10S", [3])]
 
 
-def test_a_wall_seen_in_two_parts_becomes_one_landmark_online():
+@pytest.mark.parametrize("tilt", [None, DepthTilt(Camera(width=640, height=480, fx=525.0, fy=525.0, cx=319.5, cy=239.5), 0.002)])
+def test_a_wall_seen_in_two_parts_becomes_one_landmark_online(tilt):
     """A wall seen at one end, then at the other (too far apart for the SLAM association's
     extent check), makes two landmarks of one face; once both are matched, the second merges
-    into the first: one plane-to-BIM factor for the face, every observation on one landmark."""
+    into the first: one plane-to-BIM factor for the face, every observation on one landmark
+    (with the depth tilt variable too, each through a moved anchor of the landmark kept)."""
     # the wall's face is y = 0 facing +y, 4 m by 3 m; the camera at y = 2 looks along -y
     plane_map = PlaneMap(faces=[BimFace(id="w", wall_guid="w", normal=(0, 1, 0), offset=0.0,
                                         polygon=[(0, 0, 0), (4, 0, 0), (4, 0, 3), (0, 0, 3)])])
@@ -354,11 +357,16 @@ def test_a_wall_seen_in_two_parts_becomes_one_landmark_online():
         plane = PlaneObservation(n=tuple(n_C), d=2.0, cov=np.diag([1e-6, 1e-6, 1e-5]).tolist(), polygon=polygon_C.tolist())
         keyframes.append(Keyframe(index=k, stamp=float(k), T_S_C=tuple(pose_to_tum(T_B_C)), planes=[plane]))
     initial = Alignment(np.eye(4), np.diag([1e-4] * 3 + [1e-4] * 3))
-    backend = Backend(plane_map, BackendConfig(), initial)
+    backend = Backend(plane_map, BackendConfig(), initial, tilt=tilt)
     results = [backend.process(kf) for kf in keyframes]
     first, second = backend.landmarks[0], backend.landmarks[1]
     assert second.merged_into == first.id and first.face == "w" and second.face is None
     assert len(first.observations) == len(keyframes)
+    factors = backend.graph.isam.getFactorsUnsafe()
+    kept = [factors.at(i) for i in backend.graph.observation_index[first.id]]
+    assert len(kept) == len(keyframes) and not backend.graph.observation_index.get(second.id)
+    anchors = {gtsam.Symbol(f.keys()[1]).chr() for f in kept if len(f.keys()) == 3}
+    assert anchors == ({ord("x")} if tilt is None else {ord("m")})
     assert list(backend.graph.bim_index) == [first.id] and backend.landmarks.current() == [first]
     assert {a.landmark for a in results[-1].associations} == {first.id}
 

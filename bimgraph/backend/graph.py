@@ -266,6 +266,9 @@ class IncrementalGraph:
     def add(self, factor: gtsam.NonlinearFactor) -> None:
         self._factors.add(factor)
 
+    def insert(self, key: int, value) -> None:
+        self._values.insert(key, value)
+
     def insert_pose(self, k: int, T_S_C: np.ndarray) -> None:
         self._values.insert(X(k), pose3(T_S_C))
 

@@ -31,6 +31,7 @@ import numpy as np
 from bimgraph.backend import drift
 from bimgraph.backend.alignment import Alignment
 from bimgraph.backend.associate_bim import candidate
+from bimgraph.backend.depth_tilt import without_tilt
 from bimgraph.backend.graph import E, L, X, BatchSolver, bim_keys, cov_T_B_S, pose3
 from bimgraph.backend.landmarks import DIRECTION, KEPT, Landmark, transform_points
 from bimgraph.backend.marginals import JointMarginals
@@ -84,7 +85,7 @@ class OfflineEstimator:
         """The rounds, from the causal pass's graph and associations (`keyframes` are the ones it saw)."""
         start = time.perf_counter()
         timings = {} if timings is None else timings
-        values = self.online.graph.estimate()
+        values = without_tilt(self.online.graph.estimate())
         observations = {kf.index: observations_of(kf, self.online.build) for kf in keyframes}
 
         solve = BatchSolver(self.cfg.offline.max_iterations, self.cfg.offline.relative_error_tol)

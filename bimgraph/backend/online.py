@@ -13,7 +13,8 @@ from bimgraph.backend.alignment import Alignment, levelled, lock_directions, unl
 from bimgraph.backend.associate_bim import FaceIndex
 from bimgraph.backend.associate_slam import Observation, SlamAssociator
 from bimgraph.backend import drift
-from bimgraph.backend.graph import E, L, X, FactorBuilder, FrozenPlane, IncrementalGraph, cov_T_B_S
+from bimgraph.backend.depth_tilt import MOVED_ANCHOR, TILT, DepthTilt
+from bimgraph.backend.graph import E, L, X, FactorBuilder, FrozenPlane, IncrementalGraph, cov_T_B_S, pose3
 from bimgraph.backend.landmarks import Landmark, LandmarkTable, observation_points, transform_points
 from bimgraph.backend.odometry import OdometryModel
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
@@ -21,7 +22,9 @@ from bimgraph.backend.online_bim import OnlineBimAssociation
 from bimgraph.backend.online_judgement import OnlineJudgement
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig, Isam2Config
+from bimgraph.geometry import normalise_plane
 from bimgraph.sequence.format import Keyframe
+from factors import predict_local_plane
 
 Oracle = Mapping[tuple[int, int], "str | None"]
 
@@ -46,13 +49,18 @@ class Backend:
 
     `oracle` maps (keyframe index, observation index) to the true face id (or None): landmarks
     are then one per face and matched at once, the reference the association is measured by.
+    `tilt`: the planes come from the keyframes' depth images, and each keyframe's depth
+    sensor tilt is a variable its plane observations share (`bimgraph.backend.depth_tilt`).
     """
 
     def __init__(self, plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,
                  listener: Listener | None = None, oracle: Oracle | None = None, covariance: bool = True,
                  drift_every: int | None = None, judge_every: int | None = None, merge: bool = True,
-                 extrinsic_last: bool = True):
+                 extrinsic_last: bool = True, tilt: DepthTilt | None = None):
         self.cfg = cfg
+        self.tilt = tilt
+        self._tilted: set[int] = set()  # keyframes with a tilt variable
+        self._moved = 0  # observations seen through a tilt so far
         # False: results carry NaN covariances, for callers that read it rarely
         # (`extrinsic_covariance`): on the simulated walks the extrinsic's marginal costs iSAM2
         # about as much as its update
@@ -82,7 +90,7 @@ class Backend:
         self._keyframes: list[Keyframe] = []  # so far, for the drift's fit
         self._count = 0
         self.matches = OnlineBimAssociation(self.faces, cfg, self.graph, self.landmarks, self.listener,
-                                            self.extrinsic_covariance, self.slam.gate, merge)
+                                            self.extrinsic_covariance, self.slam.gate, self._observe if merge else None)
         self.judge = OnlineJudgement(self.faces, self.build, self.landmarks, cfg)
 
     # -- the step ---------------------------------------------------------------------------
@@ -197,6 +205,10 @@ class Backend:
             if self.gravity_aligned:  # (the first pose's prior holds its tilt already)
                 self.graph.add(self.build.gravity(kf.index, self.odometry.pose(kf)))
         self.graph.insert_pose(kf.index, guess)
+        if self.tilt is not None and kf.planes:
+            self.graph.insert(TILT(kf.index), np.zeros(2))
+            self.graph.add(self.tilt.prior(kf.index))
+            self._tilted.add(kf.index)
         return guess
 
     def _correct_drift(self) -> bool:
@@ -233,7 +245,7 @@ class Backend:
             j = len(self.landmarks)
             self.landmarks.add(Landmark(j, k, obs.plane_C, obs.cov, T_S_C))
             self.graph.insert_plane(j, obs.plane_C)
-            self.graph.add_observation(j, self.build.anchor_observation(j, obs.plane_C, obs.cov))
+            self._observe(k, j, obs.plane_C, obs.cov, T_S_C)
             face = self.oracle.get((k, obs.index)) if self.oracle is not None else None
             if face is not None:
                 self._landmark_of_face[face] = j
@@ -241,7 +253,7 @@ class Backend:
         elif self.landmarks[j].frozen is not None:
             self.graph.add_frozen_observation(k, self.landmarks[j].frozen, obs.plane_C, obs.cov)
         else:
-            self.graph.add_observation(j, self.build.observation(k, self.landmarks[j].anchor, j, obs.plane_C, obs.cov))
+            self._observe(k, j, obs.plane_C, obs.cov, T_S_C)
         self.matches.seen(k, obs)
         lm = self.landmarks[j]
         lm.add_observation(k, obs.index, transform_points(self.landmarks.T_A_S[j] @ T_S_C, obs.points_C), obs.area,
@@ -250,6 +262,27 @@ class Backend:
         if lm.frozen is None and len(lm.observations) >= self.cfg.isam2.freeze_after and self._freezable(lm):
             lm.frozen = FrozenPlane.of(lm.T_S_A, lm.plane_A, lm.cov_A)
         return j
+
+    def _observe(self, k: int, j: int, plane_C: np.ndarray, cov: np.ndarray, T_S_C: np.ndarray | None = None) -> None:
+        """Keyframe k's observation of landmark j (not frozen) into the graph; where keyframe k
+        has a tilt variable, seen from a moved copy of the landmark's anchor that the tilt
+        moves (`T_S_C`: keyframe k's pose as far as known; None: its current estimate, for a
+        merge)."""
+        lm = self.landmarks[j]
+        if k not in self._tilted:
+            self.graph.add_observation(j, self.build.observation(k, lm.anchor, j, plane_C, cov))
+            return
+        moved = MOVED_ANCHOR(self._moved)
+        self._moved += 1
+        T_S_A = pose3(lm.T_S_A)
+        if k == lm.anchor:
+            T_S_C = T_S_A
+        else:
+            T_S_C = self.graph.estimate([X(k)]).atPose3(X(k)) if T_S_C is None else pose3(T_S_C)
+        _, J = predict_local_plane(T_S_C, T_S_A, gtsam.OrientedPlane3(normalise_plane(lm.plane_A)), jacobian=True)
+        self.graph.insert(moved, T_S_A)
+        self.graph.add(self.tilt.link(X(lm.anchor), moved, k, T_S_A, J[:, 6:12], plane_C))
+        self.graph.add_observation(j, self.build.observation_of(X(k), moved, L(j), plane_C, cov))
 
     def _freezable(self, lm: Landmark) -> bool:
         """Whether the landmark is level (`isam2.freeze_max_tilt_deg`) and no face of the map is

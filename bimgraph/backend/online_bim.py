@@ -23,16 +23,19 @@ class OnlineBimAssociation:
     """Matches the landmarks of `landmarks` to the faces of `faces` and keeps the graph's
     plane-to-BIM factors as the matches stand. `extrinsic_covariance(T_S_B)` is the
     extrinsic's covariance as the graph stands; `slam_gate` the SLAM association's chi-square
-    gate, which decides whether two landmarks of one face are one plane; `merge` False keeps
-    such landmarks apart (the offline rounds merge them)."""
+    gate, which decides whether two landmarks of one face are one plane; `observe(k, j,
+    plane_C, cov)` puts keyframe k's observation of landmark j into the graph, for a merge to
+    move a landmark's observations to another; None keeps such landmarks apart (the offline
+    rounds merge them)."""
 
     def __init__(self, faces: FaceIndex, cfg: BackendConfig, graph: IncrementalGraph, landmarks: LandmarkTable,
                  listener: Listener, extrinsic_covariance: Callable[[gtsam.Pose3], np.ndarray], slam_gate: float,
-                 merge: bool = True):
+                 observe: Callable[[int, int, np.ndarray, np.ndarray], None] | None = None):
         self.faces, self.cfg, self.graph, self.landmarks, self.listener = faces, cfg, graph, landmarks, listener
         self.bim = BimAssociator(faces, cfg.bim_association)
         self.extrinsic_covariance = extrinsic_covariance
-        self.merge = merge
+        self.observe = observe
+        self.merge = observe is not None
         self.slam_gate = slam_gate
         # (landmark, face) pairs found not one plane with another landmark of the face: the one
         # farther from it stays apart from it (online here, offline when merging)
@@ -167,7 +170,7 @@ class OnlineBimAssociation:
         """`gone` is `keep`'s plane (one face, one plane): its observations move to `keep`."""
         for k, i in gone.observations:
             obs = self._observations[k, i]
-            self.graph.add_observation(keep.id, self.graph.build.observation(k, keep.anchor, keep.id, obs.plane_C, obs.cov))
+            self.observe(k, keep.id, obs.plane_C, obs.cov)
         self.graph.retire(gone.id, self.graph.build.anchor_observation(gone.id, gone.plane_A, gone.cov_A))
         self.landmarks.merge(keep, gone, self.cfg.slam_association.extent_max_points)
         self._merged.append(keep.id)

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from bimgraph.backend.alignment import Alignment, align_from_seeds
+from bimgraph.backend.depth_tilt import DepthTilt
 from bimgraph.backend.graph import BatchSolver, singular_as_error
 from bimgraph.backend.offline import OfflineEstimator, run_offline
 from bimgraph.backend.online import Backend
@@ -66,6 +67,14 @@ def run_model(out_dir: Path, seq_dir: Path | None = None) -> Path | None:
         if moved.is_file():
             return moved
     raise InputError(f"{out_dir}: the run's BIM model {named} is not there; give it with --bim")
+
+
+def depth_tilt(meta: SequenceMeta, cfg: Config) -> DepthTilt | None:
+    """The depth sensor's tilt model for a sequence whose planes were extracted from its own
+    depth images (`sensor: depth`), unless the configuration leaves it out."""
+    if not cfg.backend.noise.depth_tilt or meta.sensor != "depth" or meta.camera is None or cfg.depth_noise.tilt_sigma_per_m == 0:
+        return None
+    return DepthTilt(meta.camera, cfg.depth_noise.tilt_sigma_per_m)
 
 
 def initial_alignment(meta: SequenceMeta, cfg: Config) -> Alignment:
@@ -211,7 +220,8 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
 
     # the extrinsic's covariance per keyframe only for a listener (the viewer plots it); the
     # writer asks for it when it writes
-    backend = Backend(plane_map, cfg.backend, initial, listener, truth, covariance=listener is not None)
+    backend = Backend(plane_map, cfg.backend, initial, listener, truth, covariance=listener is not None,
+                      tilt=depth_tilt(meta, cfg))
     writer = OnlineWriter(out_dir, cfg.backend.write_every, named)
     start = time.perf_counter()
     try:

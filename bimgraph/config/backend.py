@@ -25,6 +25,7 @@ class NoiseConfig(Section):
     bim_kernel: str = Field("cauchy", pattern="^(none|huber|cauchy)$", description="robust kernel on plane-to-BIM factors until the robust alignment has judged them (offline; online with isam2.judge_every), Gaussian after (a Gaussian one before lets one wrong match move the extrinsic)")
     bim_kernel_width: float = Field(1.0, gt=0, description="kernel width of plane-to-BIM factors, in sigmas")
     gravity_deg: float = Field(0.1, gt=0, le=180, description="gravity-aligned sequences: error of the front-end's up direction in every keyframe (attitude factors), and of T_B_S's tilt (S and B both have z up)")
+    depth_tilt: bool = Field(True, description="online runs of a sequence whose planes were extracted from its own depth images (sensor: depth, with its camera): each keyframe's planes share a variable for the depth sensor's tilt across the image (prior sigma depth_noise.tilt_sigma_per_m), which moves all of them at once; taken as independent, they put the extrinsic centimetres off under an overconfident covariance. Offline runs leave it out (no gain there)")
     extrinsic_rot_deg: float = Field(2.0, gt=0, le=180, description="prior on T_B_S when the sequence gives no initial alignment uncertainty (rotation)")
     extrinsic_trans_m: float = Field(0.2, gt=0, le=1000, description="prior on T_B_S when the sequence gives no initial alignment uncertainty (translation)")
 

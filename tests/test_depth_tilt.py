@@ -1,0 +1,153 @@
+"""The depth sensor's tilt variable: its closed-form sensitivity against planes refitted to the
+simulator's tilted depth, the link against the prediction it stands for, and the online
+estimator with it."""
+
+import gtsam
+import numpy as np
+import pytest
+
+from bimgraph.backend import Alignment, Backend
+from bimgraph.backend.depth_tilt import MOVED_ANCHOR, TILT, DepthTilt, tilt_sensitivity
+from bimgraph.backend.graph import X
+from bimgraph.backend.synthetic import make_scene
+from bimgraph.config import BackendConfig
+from bimgraph.evaluation.metrics import extrinsic_error, extrinsic_nees
+from bimgraph.geometry import normalise_plane
+from bimgraph.sim.render import distortion_basis
+from factors import predict_local_plane
+from bimgraph.sequence.format import Camera
+
+TILT_SIGMA = 0.002
+# (TUM RGB-D's freiburg1 camera: its principal point is off the image's centre)
+CAMERA = Camera(width=640, height=480, fx=517.3, fy=516.5, cx=318.6, cy=255.3)
+
+
+def fit_plane(points: np.ndarray, n_ref: np.ndarray) -> np.ndarray:
+    centre = points.mean(axis=0)
+    n = np.linalg.svd(points - centre)[2][2]
+    n = n if n @ n_ref > 0 else -n
+    return np.array([*n, -n @ centre])
+
+
+def refit_sensitivity(plane_C: np.ndarray, eps: float = 1e-6) -> np.ndarray:
+    """d(n, d)/d(t1, t2) by central differences of a plane fitted to the pixels (every 8th) it
+    covers, their depth tilted as the simulator tilts it (`systematic_depth_error`)."""
+    v, u = np.mgrid[0:CAMERA.height:8, 0:CAMERA.width:8]
+    rays = np.stack([(u - CAMERA.cx) / CAMERA.fx, (v - CAMERA.cy) / CAMERA.fy, np.ones(u.shape)], axis=-1)
+    facing = rays @ plane_C[:3] < -1e-3
+    z = -plane_C[3] / (rays @ plane_C[:3])
+    basis = distortion_basis(CAMERA.height, CAMERA.width)[:2, ::8, ::8]
+    G = np.zeros((4, 2))
+    for i in range(2):
+        fits = [fit_plane((rays * (z + s * basis[i] * z * z)[..., None])[facing], plane_C[:3]) for s in (eps, -eps)]
+        G[:, i] = (fits[0] - fits[1]) / (2 * eps)
+    return G
+
+
+@pytest.mark.parametrize("plane_C", [
+    [0, 0, -1, 3.0],  # a wall ahead
+    [-0.8, 0, -0.6, 2.0],  # a side wall, obliquely
+    [0, -1, 0, 1.4],  # the floor (y down)
+    [0.3, -0.5, -0.81, 2.5],
+])
+def test_sensitivity_matches_a_refit_of_the_simulators_tilted_depth(plane_C):
+    plane_C = normalise_plane(np.array(plane_C, dtype=float))
+    G = tilt_sensitivity(plane_C, DepthTilt(CAMERA, TILT_SIGMA).dm_dtau)
+    G_refit = refit_sensitivity(plane_C)
+    assert np.abs(G - G_refit).max() < 1e-3 * np.abs(G_refit).max()
+
+
+def _case(rng):
+    """A keyframe's pose, a landmark's anchor pose and its plane in the anchor, which the
+    keyframe sees in front of it (d > 0)."""
+    T_S_C = gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3) * 0.5), rng.normal(size=3))
+    T_S_A = gtsam.Pose3(gtsam.Rot3.Expmap(rng.normal(size=3) * 0.5), rng.normal(size=3))
+    n_C = normalise_plane(np.array([*rng.normal(size=2) * 0.4, -1.0, 0.0]))[:3]
+    plane_S = gtsam.OrientedPlane3(np.array([*n_C, 2.5])).transform(T_S_C.inverse())
+    return T_S_C, T_S_A, plane_S.transform(T_S_A)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_link_moves_the_predicted_plane_as_the_tilt_does(seed):
+    """With the moved anchor at `anchor * Exp(K tau)` the link holds, and the plane predicted
+    from it has moved by `G tau` (to first order: a central difference); the anchor's own
+    observation likewise."""
+    rng = np.random.default_rng(seed)
+    tilt = DepthTilt(CAMERA, TILT_SIGMA)
+    T_S_C, T_S_A, plane_A = _case(rng)
+    tau = rng.normal(size=2) * 1e-6
+    for T_S_K in (T_S_C, T_S_A):
+        plane_K, J = predict_local_plane(T_S_K, T_S_A, plane_A, jacobian=True)
+        K = tilt.anchor_step(plane_K, J[:, 6:12])
+        moved = [predict_local_plane(T_S_K, T_S_A.retract(s * K @ tau), plane_A) for s in (1, -1)]
+        G = tilt_sensitivity(plane_K, tilt.dm_dtau)
+        assert np.allclose((moved[0] - moved[1]) / 2, G @ tau, rtol=1e-4, atol=1e-12)
+
+        link = tilt.link(X(1), MOVED_ANCHOR(0), 7, T_S_A, J[:, 6:12], plane_K)
+        values = gtsam.Values()
+        values.insert(X(1), T_S_A)
+        values.insert(TILT(7), tau * 1e3)
+        values.insert(MOVED_ANCHOR(0), T_S_A.retract(K @ tau * 1e3))
+        unmoved = gtsam.Values(values)
+        unmoved.update(MOVED_ANCHOR(0), T_S_A)
+        assert link.error(values) < 1e-12 * link.error(unmoved)
+
+
+def tilted_keyframes(scene, sigma: float, seed: int):
+    """The scene's keyframes with every plane of a keyframe moved by one tilt drawn for it, and
+    each covariance grown by the tilt's share (as the plane extractor's systematic floor
+    grows it): each plane alone stays consistent with its covariance."""
+    rng = np.random.default_rng(seed)
+    dm_dtau = DepthTilt(CAMERA, sigma).dm_dtau
+    out = []
+    for kf in scene.keyframes:
+        tau = rng.normal(size=2) * sigma
+        planes = []
+        for p in kf.planes:
+            G = tilt_sensitivity(np.array([*p.n, p.d]), dm_dtau)
+            moved = normalise_plane(np.array([*p.n, p.d]) + G @ tau)
+            G_tangent = np.vstack([gtsam.Unit3(moved[:3]).basis().T @ G[:3], G[3:]])
+            cov = np.array(p.cov) + sigma**2 * G_tangent @ G_tangent.T
+            planes.append(p.model_copy(update={"n": tuple(moved[:3]), "d": float(moved[3]), "cov": cov.tolist()}))
+        out.append(kf.model_copy(update={"planes": planes}))
+    return out
+
+
+def final_extrinsic(scene, keyframes, tilt):
+    backend = Backend(scene.plane_map, BackendConfig(), scene.initial, tilt=tilt)
+    result = [backend.process(kf) for kf in keyframes][-1]
+    return backend, result
+
+
+def test_the_tilt_variable_takes_out_the_error_a_keyframes_planes_share():
+    """Planes tilted together per keyframe (4 mm per m^2 at the image's border): taken as
+    independent, the extrinsic's heading is off by several of its sigmas; with the tilt
+    variable, closer and honest (measured on seeds 0-9: heading RMS 0.39 -> 0.25 deg, mean
+    NEES 5.0 -> 0.7)."""
+    sigma, errors, nees = 0.004, {False: [], True: []}, {False: [], True: []}
+    for seed in range(6):
+        scene = make_scene(200, rooms=(2, 2), seed=seed, normal_sigma_deg=0.1, offset_sigma_m=0.003)
+        keyframes = tilted_keyframes(scene, sigma, seed)
+        for with_tilt in (False, True):
+            _, result = final_extrinsic(scene, keyframes, DepthTilt(CAMERA, sigma) if with_tilt else None)
+            errors[with_tilt].append(extrinsic_error(result.T_B_S, scene.T_B_S)[0])
+            nees[with_tilt].append(extrinsic_nees(result.T_B_S, result.cov_T_B_S, scene.T_B_S))
+    rms = {key: np.sqrt(np.mean(np.square(value))) for key, value in errors.items()}
+    assert rms[True] < 0.75 * rms[False]
+    assert np.mean(nees[True]) < 1.5 and np.mean(nees[False]) > 3.0
+
+
+def test_a_negligible_tilt_leaves_the_estimate_as_without_it():
+    """With a tilt sigma far below the planes' own, the moved anchors are the anchors: the same
+    estimate, and every keyframe with planes has its tilt variable."""
+    scene = make_scene(120, rooms=(2, 2), seed=1)
+    plain, without = final_extrinsic(scene, scene.keyframes, None)
+    backend, with_tilt = final_extrinsic(scene, scene.keyframes, DepthTilt(CAMERA, 1e-7))
+    # (iSAM2's estimate depends on its path, and the anchor's own observation is a plane prior
+    # without the tilt, a plane factor from the moved anchor with it)
+    deg, cm = extrinsic_error(with_tilt.T_B_S, without.T_B_S)
+    assert deg < 0.02 and cm < 0.1
+    assert [a.landmark for a in with_tilt.associations] == [a.landmark for a in without.associations]
+    values = backend.graph.estimate()
+    assert all(values.exists(TILT(kf.index)) == bool(kf.planes) for kf in scene.keyframes)
+    assert values.exists(MOVED_ANCHOR(0)) and not plain.graph.estimate().exists(MOVED_ANCHOR(0))

@@ -30,7 +30,7 @@ from pathlib import Path
 from scipy.stats import chi2
 
 from bimgraph.backend import run_offline, run_online
-from bimgraph.backend.pipeline import initial_alignment, load_model, model_path, oracle_of
+from bimgraph.backend.pipeline import depth_tilt, initial_alignment, load_model, model_path, oracle_of
 from bimgraph.config import load_config
 from bimgraph.evaluation.jobs import run_all
 from bimgraph.evaluation.metrics import association_scores, ate, extrinsic_error, extrinsic_nees
@@ -53,7 +53,7 @@ def evaluate(root: Path, cfg, modes=MODES) -> list[dict]:
     for mode in modes:
         start = time.perf_counter()
         if mode == "online":
-            results = run_online(sequence.keyframes, plane_map, cfg.backend, initial)
+            results = run_online(sequence.keyframes, plane_map, cfg.backend, initial, tilt=depth_tilt(sequence.meta, cfg))
         else:
             results = run_offline(sequence.keyframes, plane_map, cfg.backend, initial,
                                   oracle=truth if mode == "oracle" else None)

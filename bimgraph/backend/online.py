@@ -307,9 +307,9 @@ class Backend:
 
 
 def run_online(keyframes, plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,
-               listener: Listener | None = None, oracle: Oracle | None = None) -> Results:
+               listener: Listener | None = None, oracle: Oracle | None = None, tilt: DepthTilt | None = None) -> Results:
     """The online estimator over a whole sequence, collected: the causal estimates as emitted."""
-    backend = Backend(plane_map, cfg, initial, listener, oracle)
+    backend = Backend(plane_map, cfg, initial, listener, oracle, tilt=tilt)
     start = time.perf_counter()
     emitted = [backend.process(kf) for kf in keyframes]
     last = emitted[-1]

@@ -5,6 +5,7 @@ The graph uses gtsam's C++ factors wherever they compute the same residual (Pyth
 optimisers); the Python versions here are the readable reference the tests hold them to.
 """
 
+from factors.depth_tilt import anchor_step, inverse_depth_sensitivity, tilt_link_factor, tilt_sensitivity
 from factors.plane import (
     deviation_cov_in_residual,
     error_jacobian_wrt_plane,
@@ -22,6 +23,10 @@ from factors.plane import (
 )
 
 __all__ = [
+    "anchor_step",
+    "inverse_depth_sensitivity",
+    "tilt_link_factor",
+    "tilt_sensitivity",
     "deviation_cov_in_residual",
     "error_jacobian_wrt_plane",
     "face_tolerance_coordinates",

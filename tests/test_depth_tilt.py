@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 
 from bimgraph.backend import Alignment, Backend
-from bimgraph.backend.depth_tilt import MOVED_ANCHOR, TILT, DepthTilt, tilt_sensitivity
+from bimgraph.backend.depth_tilt import MOVED_ANCHOR, TILT, DepthTilt
 from bimgraph.backend.graph import X
 from bimgraph.backend.synthetic import make_scene
 from bimgraph.config import BackendConfig
 from bimgraph.evaluation.metrics import extrinsic_error, extrinsic_nees
 from bimgraph.geometry import normalise_plane
 from bimgraph.sim.render import distortion_basis
-from factors import predict_local_plane
+from factors import anchor_step, predict_local_plane, tilt_sensitivity
 from bimgraph.sequence.format import Camera
 
 TILT_SIGMA = 0.002
@@ -78,7 +78,7 @@ def test_the_link_moves_the_predicted_plane_as_the_tilt_does(seed):
     tau = rng.normal(size=2) * 1e-6
     for T_S_K in (T_S_C, T_S_A):
         plane_K, J = predict_local_plane(T_S_K, T_S_A, plane_A, jacobian=True)
-        K = tilt.anchor_step(plane_K, J[:, 6:12])
+        K = anchor_step(plane_K, J[:, 6:12], tilt.dm_dtau)
         moved = [predict_local_plane(T_S_K, T_S_A.retract(s * K @ tau), plane_A) for s in (1, -1)]
         G = tilt_sensitivity(plane_K, tilt.dm_dtau)
         assert np.allclose((moved[0] - moved[1]) / 2, G @ tau, rtol=1e-4, atol=1e-12)

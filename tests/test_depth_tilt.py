@@ -1,21 +1,25 @@
 """The depth sensor's tilt variable: its closed-form sensitivity against planes refitted to the
-simulator's tilted depth, the link against the prediction it stands for, and the online
-estimator with it."""
+simulator's tilted depth, the tie against the prediction it stands for, the online estimator
+with it, and a run that turns it on."""
 
 import gtsam
 import numpy as np
 import pytest
+from synthetic_sequence import write_sequence
 
-from bimgraph.backend import Alignment, Backend
+from bimgraph.backend import Backend
 from bimgraph.backend.depth_tilt import MOVED_ANCHOR, TILT, DepthTilt
 from bimgraph.backend.graph import X
+from bimgraph.backend.pipeline import run as run_pipeline
+from bimgraph.backend.results import load_summary
 from bimgraph.backend.synthetic import make_scene
-from bimgraph.config import BackendConfig
+from bimgraph.config import BackendConfig, Config
 from bimgraph.evaluation.metrics import extrinsic_error, extrinsic_nees
+from bimgraph.evaluation.runs import run_summary
 from bimgraph.geometry import normalise_plane
+from bimgraph.sequence.format import Camera
 from bimgraph.sim.render import distortion_basis
 from factors import anchor_step, predict_local_plane, tilt_sensitivity
-from bimgraph.sequence.format import Camera
 
 TILT_SIGMA = 0.002
 # (TUM RGB-D's freiburg1 camera: its principal point is off the image's centre)
@@ -151,3 +155,18 @@ def test_a_negligible_tilt_leaves_the_estimate_as_without_it():
     values = backend.graph.estimate()
     assert all(values.exists(TILT(kf.index)) == bool(kf.planes) for kf in scene.keyframes)
     assert values.exists(MOVED_ANCHOR(0)) and not plain.graph.estimate().exists(MOVED_ANCHOR(0))
+
+
+def test_a_run_models_the_tilt_online_for_planes_from_depth_and_says_so(tmp_path):
+    """`bimgraph run` gives a `sensor: depth` sequence the tilt variable online, and its
+    summary and printout say so; offline, a planes sequence, or the setting off: none."""
+    write_sequence(tmp_path / "depth", 40, rooms=(1, 1), sensor="depth")
+    write_sequence(tmp_path / "planes", 40, rooms=(1, 1))
+    off = Config.model_validate({"backend": {"noise": {"depth_tilt": False}}})
+    for seq, mode, cfg, expected in [("depth", "online", Config(), Config().depth_noise.tilt_sigma_per_m),
+                                     ("depth", "offline", Config(), None), ("planes", "online", Config(), None),
+                                     ("depth", "online", off, None)]:
+        out = tmp_path / f"{seq}-{mode}-{cfg is off}"
+        run_pipeline(tmp_path / seq, out, mode=mode, config=cfg)
+        assert load_summary(out / "summary.json").depth_tilt_sigma_per_m == expected
+        assert ("depth tilt" in dict(run_summary(out))) == (expected is not None)

@@ -32,6 +32,7 @@ class DepthTilt:
     """The tilt variable's prior and ties, for planes from depth images of this camera."""
 
     def __init__(self, camera: Camera, sigma_per_m: float):
+        self.sigma_per_m = sigma_per_m
         self.dm_dtau = inverse_depth_sensitivity(camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy)
         self.prior_noise = gtsam.noiseModel.Isotropic.Sigma(2, sigma_per_m)
         self.link_noise = gtsam.noiseModel.Isotropic.Sigma(6, _LINK_SIGMA)

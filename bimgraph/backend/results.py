@@ -151,6 +151,7 @@ class SummaryFile(_File):
     bim_tolerance: Tolerance | None = None
     frontend_drift: FrontendDrift | None = None
     alignment_challenge: Challenge | None = None
+    depth_tilt_sigma_per_m: float | None = Field(default=None, ge=0)
 
 
 def load_summary(path: Path) -> SummaryFile:
@@ -211,7 +212,7 @@ def _seconds(timings: dict) -> dict:
 def summary_record(mode: str, timings: dict, latencies_s: list[float], n_keyframes: int, landmarks: list[Landmark],
                    finished: bool, rounds: int = 0, inputs: dict | None = None,
                    bim_tolerance: tuple[float, float] | None = None, frontend_drift: dict | None = None,
-                   alignment_challenge: dict | None = None) -> dict:
+                   alignment_challenge: dict | None = None, depth_tilt_sigma_per_m: float | None = None) -> dict:
     summary = {"mode": mode, "finished": finished, **(inputs or {}), "keyframes": n_keyframes, "landmarks": len(landmarks),
                "matched_landmarks": sum(lm.face is not None for lm in landmarks),
                "matched_faces": len({lm.face for lm in landmarks if lm.face is not None}),
@@ -230,6 +231,8 @@ def summary_record(mode: str, timings: dict, latencies_s: list[float], n_keyfram
         summary["frontend_drift"] = frontend_drift
     if alignment_challenge is not None:
         summary["alignment_challenge"] = alignment_challenge
+    if depth_tilt_sigma_per_m is not None:
+        summary["depth_tilt_sigma_per_m"] = depth_tilt_sigma_per_m
     return summary
 
 
@@ -285,7 +288,8 @@ class OnlineWriter:
         write_json(self.out / LANDMARKS, landmarks_record(landmarks, self.last.T_B_S))
         self._summary = summary_record("online", timings or {}, self.latencies, len(self.latencies), landmarks, finished,
                                        inputs=self.inputs, bim_tolerance=backend.bim_tolerance,
-                                       frontend_drift=backend.odometry.summary() if backend.drift_every else None)
+                                       frontend_drift=backend.odometry.summary() if backend.drift_every else None,
+                                       depth_tilt_sigma_per_m=backend.tilt.sigma_per_m if backend.tilt is not None else None)
         write_json(self.out / SUMMARY, self._summary)
 
     def finish(self, timings: dict) -> None:

@@ -274,7 +274,7 @@ def test_online_keeps_a_cabinet_front_apart_from_the_wall_behind_it(cfg, seed):
 
 def test_a_landmark_takes_one_plane_to_bim_factor():
     """Queued or in iSAM2 already, a second plane-to-BIM factor for one landmark is refused."""
-    from bimgraph.backend.graph import IncrementalGraph
+    from bimgraph.backend.incremental import IncrementalGraph
 
     graph = IncrementalGraph(BackendConfig(), np.eye(4), np.eye(6) * 0.01)
     plane, centre = np.array([1.0, 0.0, 0.0, -2.0]), np.array([2.0, 0.0, 1.0])
@@ -287,7 +287,7 @@ def test_a_landmarks_plane_to_bim_factor_is_replaced_and_left_out_of_the_batch_g
     """What the online judgement does to the graph: the factor it gives a landmark replaces
     the one in iSAM2 (none: taken out; taking out a factor that is not there is no error), and
     the batch graph it judges over holds every other factor."""
-    from bimgraph.backend.graph import IncrementalGraph
+    from bimgraph.backend.incremental import IncrementalGraph
 
     graph = IncrementalGraph(BackendConfig(), np.eye(4), np.eye(6) * 0.01)
     plane_C, face, centre = np.array([1.0, 0.0, 0.0, -2.0]), np.array([1.0, 0.0, 0.0, -2.0]), np.array([2.0, 0.0, 1.0])

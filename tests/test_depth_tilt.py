@@ -8,8 +8,8 @@ import pytest
 from synthetic_sequence import write_sequence
 
 from bimgraph.backend import Backend
-from bimgraph.backend.depth_tilt import MOVED_ANCHOR, TILT, DepthTilt
-from bimgraph.backend.graph import X
+from bimgraph.backend.depth_tilt import DepthTilt
+from bimgraph.backend.graph import MOVED_ANCHOR, TILT, X
 from bimgraph.backend.pipeline import run as run_pipeline
 from bimgraph.backend.results import load_summary
 from bimgraph.backend.synthetic import make_scene

@@ -18,11 +18,11 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from bimgraph.backend.graph import MOVED_ANCHOR, TILT
 from bimgraph.sequence.format import Camera
 from factors import anchor_step, inverse_depth_sensitivity, tilt_link_factor
 
-TILT = gtsam.symbol_shorthand.T
-MOVED_ANCHOR = gtsam.symbol_shorthand.M
+_SYMBOLS = {gtsam.Symbol(TILT(0)).chr(), gtsam.Symbol(MOVED_ANCHOR(0)).chr()}
 # the tie is a constraint, not a measurement: tight against any plane's sigma (0.01 deg, 0.1
 # mm at the floor), loose enough to keep iSAM2's system well conditioned
 _LINK_SIGMA = 1e-4
@@ -53,6 +53,6 @@ def without_tilt(values: gtsam.Values) -> gtsam.Values:
     offline rounds': measured offline, the tilt variable gains little, 3.5 -> 2.4 cm on office 1
     at 6x the time)."""
     for key in values.keys():
-        if gtsam.Symbol(key).chr() in (ord("t"), ord("m")):
+        if gtsam.Symbol(key).chr() in _SYMBOLS:
             values.erase(key)
     return values

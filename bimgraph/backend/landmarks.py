@@ -11,7 +11,8 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
-from bimgraph.backend.graph import FrozenPlane, L, X
+from bimgraph.backend.graph import L, X
+from bimgraph.backend.incremental import FrozenPlane
 from bimgraph.geometry import inverse, plane_from_frame
 
 
@@ -80,7 +81,7 @@ class Landmark:
     merged_into: int | None = None  # set when an offline round found it to be another landmark's plane
     # how the alignment uses its plane-to-BIM factor (offline GNC decides; see below)
     alignment: str = KEPT
-    # online, once frozen: its anchor and plane as they were (`graph.FrozenPlane`); later
+    # online, once frozen: its anchor and plane as they were (`incremental.FrozenPlane`); later
     # observations use copies
     frozen: FrozenPlane | None = None
 

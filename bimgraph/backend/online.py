@@ -13,8 +13,9 @@ from bimgraph.backend.alignment import Alignment, levelled, lock_directions, unl
 from bimgraph.backend.associate_bim import FaceIndex
 from bimgraph.backend.associate_slam import Observation, SlamAssociator
 from bimgraph.backend import drift
-from bimgraph.backend.depth_tilt import MOVED_ANCHOR, TILT, DepthTilt
-from bimgraph.backend.graph import E, L, X, FactorBuilder, FrozenPlane, IncrementalGraph, cov_T_B_S, pose3
+from bimgraph.backend.depth_tilt import DepthTilt
+from bimgraph.backend.graph import MOVED_ANCHOR, TILT, E, L, X, FactorBuilder, cov_T_B_S, pose3
+from bimgraph.backend.incremental import FrozenPlane, IncrementalGraph
 from bimgraph.backend.landmarks import Landmark, LandmarkTable, observation_points, transform_points
 from bimgraph.backend.odometry import OdometryModel
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results

@@ -11,7 +11,7 @@ import numpy as np
 
 from bimgraph.backend.associate_bim import BimAssociator, FaceIndex, FaceMatch, candidate
 from bimgraph.backend.associate_slam import Observation
-from bimgraph.backend.graph import IncrementalGraph
+from bimgraph.backend.incremental import IncrementalGraph
 from bimgraph.backend.landmarks import KEPT, Landmark, LandmarkTable
 from bimgraph.backend.matches import behind, face_misfit, offset_sigma, one_plane_d2, revision_reason, unmatch
 from bimgraph.backend.records import Listener

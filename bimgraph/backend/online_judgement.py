@@ -16,7 +16,8 @@ from __future__ import annotations
 import gtsam
 
 from bimgraph.backend.associate_bim import FaceIndex
-from bimgraph.backend.graph import FactorBuilder, IncrementalGraph, bim_keys
+from bimgraph.backend.graph import FactorBuilder, bim_keys
+from bimgraph.backend.incremental import IncrementalGraph
 from bimgraph.backend.landmarks import LandmarkTable
 from bimgraph.backend.odometry import OdometryModel
 from bimgraph.backend.reduced import reduced

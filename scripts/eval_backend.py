@@ -50,13 +50,14 @@ def evaluate(root: Path, cfg, modes=MODES) -> list[dict]:
     truth = oracle_of(root)
     frontend = ate([initial.T_B_S @ kf.pose for kf in sequence.keyframes], gt.T_B_C)
     rows = []
+    tilt = depth_tilt(sequence.meta, cfg)
     for mode in modes:
         start = time.perf_counter()
         if mode == "online":
-            results = run_online(sequence.keyframes, plane_map, cfg.backend, initial, tilt=depth_tilt(sequence.meta, cfg))
+            results = run_online(sequence.keyframes, plane_map, cfg.backend, initial, tilt=tilt)
         else:
             results = run_offline(sequence.keyframes, plane_map, cfg.backend, initial,
-                                  oracle=truth if mode == "oracle" else None)
+                                  oracle=truth if mode == "oracle" else None, tilt=tilt)
         seconds = time.perf_counter() - start
         precision, recall = association_scores(results.associations(), truth)
         rot_deg, trans_cm = extrinsic_error(results.T_B_S, gt.T_B_S)

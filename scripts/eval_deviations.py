@@ -34,7 +34,7 @@ import numpy as np
 
 from bimgraph.backend.landmarks import KEPT
 from bimgraph.backend.offline import OfflineEstimator
-from bimgraph.backend.pipeline import load_inputs
+from bimgraph.backend.pipeline import depth_tilt, load_inputs
 from bimgraph.backend.synthetic import make_scene
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig, Config, DeviationConfig, load_config
@@ -101,10 +101,11 @@ def score(data, truth, cfg: DeviationConfig) -> dict:
 
 def evaluate(plane_map: PlaneMap, keyframes, initial, truth, T_B_C_true, T_B_S_true, camera, args,
              backend_cfg: BackendConfig, dev_cfg: DeviationConfig, out_dir: Path, oracle=None,
-             kinds: dict | None = None) -> dict:
+             kinds: dict | None = None, tilt=None) -> dict:
     """Run the offline backend with the deviation step and score it. `kinds` maps (keyframe,
-    observation) to the true kind of surface observed (wall, clutter, ...), if known."""
-    est = OfflineEstimator(plane_map, backend_cfg, initial, oracle=oracle)
+    observation) to the true kind of surface observed (wall, clutter, ...), if known; `tilt` as
+    `bimgraph run` models a depth sequence's (`pipeline.depth_tilt`)."""
+    est = OfflineEstimator(plane_map, backend_cfg, initial, oracle=oracle, tilt=tilt)
     start = time.perf_counter()
     res = est.run(keyframes)
     t_backend = time.perf_counter() - start
@@ -127,8 +128,8 @@ def evaluate(plane_map: PlaneMap, keyframes, initial, truth, T_B_C_true, T_B_S_t
     return out
 
 
-def run_clean(plane_map, keyframes, initial, T_B_C_true, T_B_S_true, backend_cfg, oracle=None) -> dict:
-    res = OfflineEstimator(plane_map, backend_cfg, initial, oracle=oracle).run(keyframes)
+def run_clean(plane_map, keyframes, initial, T_B_C_true, T_B_S_true, backend_cfg, oracle=None, tilt=None) -> dict:
+    res = OfflineEstimator(plane_map, backend_cfg, initial, oracle=oracle, tilt=tilt).run(keyframes)
     rot, trans = extrinsic_error(res.T_B_S, T_B_S_true)
     return {"ext_deg": rot, "ext_cm": trans, "ate_m": ate(res.T_B_C, T_B_C_true)}
 
@@ -175,19 +176,20 @@ def oracle_of(gt) -> dict:
 
 def run_simulated(root: Path, clean_root: Path | None, args, cfg) -> dict:
     seq, gt, plane_map, initial, truth = load_simulated(root, cfg)
+    tilt = depth_tilt(seq.meta, cfg)
     out = evaluate(plane_map, seq.keyframes, initial, truth, gt.T_B_C, gt.T_B_S, seq.meta.camera, args,
                    cfg.backend, cfg.deviations, out_dir=root / "deviations_eval", oracle=oracle_of(gt) if args.oracle else None,
-                   kinds={(k, i): p["kind"] for k, planes in enumerate(gt.observations) for i, p in enumerate(planes)})
+                   kinds={(k, i): p["kind"] for k, planes in enumerate(gt.observations) for i, p in enumerate(planes)}, tilt=tilt)
     kinds = [p["kind"] for planes in gt.observations for p in planes]
     out["clutter_share"] = sum(k not in ("wall", "floor", "ceiling") for k in kinds) / max(len(kinds), 1)
     twin = run_clean(plan_as_built(plane_map, gt.as_built), seq.keyframes, initial, gt.T_B_C, gt.T_B_S, cfg.backend,
-                     oracle_of(gt) if args.oracle else None)
+                     oracle_of(gt) if args.oracle else None, tilt)
     out.update({f"twin_{k}": v for k, v in twin.items()})
     out.update(ratios(out, twin, "twin_"))
     if clean_root is not None:
         seq_c, gt_c, plane_map_c, initial_c, _ = load_simulated(clean_root, cfg)
         clean = run_clean(plane_map_c, seq_c.keyframes, initial_c, gt_c.T_B_C, gt_c.T_B_S, cfg.backend,
-                          oracle_of(gt_c) if args.oracle else None)
+                          oracle_of(gt_c) if args.oracle else None, depth_tilt(seq_c.meta, cfg))
         out.update({f"clean_{k}": v for k, v in clean.items()})
         out.update(ratios(out, clean))
     return out

@@ -147,9 +147,10 @@ def test_the_judgement_sees_the_whole_graph_through_its_marginal(offline_runs):
     est, _ = runs[True]
     observations = {kf.index: observations_of(kf, est.online.build) for kf in scene.keyframes}
     matched = [lm for lm in est.landmarks.current() if lm.face is not None]
-    whole = est._graph(scene.keyframes, observations)
-    values = BatchSolver(50, 1e-9)(whole, est.online.graph.estimate())
-    judged = reduced(est._graph(scene.keyframes, observations, lambda lm: None), values, matched)
+    start = est.online.graph.estimate()
+    whole = est._graph(scene.keyframes, observations, start)
+    values = BatchSolver(50, 1e-9)(whole, start)
+    judged = reduced(est._graph(scene.keyframes, observations, values, lambda lm: None), values, matched)
     small = judged.graph(est.judge.judged_factor)
     assert small.size() < whole.size() / 10
 
@@ -447,8 +448,8 @@ def test_likelihood_cost_is_the_tls_cost_at_the_configured_tolerance_and_rewards
     est.run(scene.keyframes)
     judge, matches = est.judge, est._matches()
     obs = {kf.index: observations_of(kf, est.online.build) for kf in scene.keyframes}
-    judged = reduced(est._graph(scene.keyframes, obs, lambda lm: None), est.online.graph.estimate(),
-                     [est.landmarks[j] for j, _ in matches])
+    start = est.online.graph.estimate()
+    judged = reduced(est._graph(scene.keyframes, obs, start, lambda lm: None), start, [est.landmarks[j] for j, _ in matches])
     values, rest = judged.point, judged.graph(lambda lm: None).error(judged.point)
     configured = est.online.build.bim_tolerance()
     c2 = chi2.ppf(judge.cfg.gnc_probability, 3)

@@ -186,8 +186,9 @@ def test_odometry_noise_estimate_reads_each_steps_joint_marginal():
     est = OfflineEstimator(scene.plane_map, BackendConfig(), scene.initial)
     est.run(keyframes)
     observations = {kf.index: observations_of(kf, est.online.build) for kf in keyframes}
-    graph = est._graph(keyframes, observations)
-    values = BatchSolver(50, 1e-9)(graph, est.online.graph.estimate())
+    start = est.online.graph.estimate()
+    graph = est._graph(keyframes, observations, start)
+    values = BatchSolver(50, 1e-9)(graph, start)
     steps = 3 * _STEPS_AT_ONCE  # spread over the walk, in three marginalisations
     found = est.odometry.estimated_variance(keyframes, graph, values, 0.95, 0.01, steps)
     marginals = gtsam.Marginals(graph, values)

@@ -209,7 +209,7 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
     clear_previous_run(out_dir)
     if mode == "offline":
         start = time.perf_counter()
-        results = run_offline(sequence.keyframes, plane_map, cfg.backend, initial, listener, truth)
+        results = run_offline(sequence.keyframes, plane_map, cfg.backend, initial, listener, truth, depth_tilt(meta, cfg))
         # as online: every other output first, `finished` once the report is written too
         write_results(out_dir, results, named, finished=False)
         report_start = time.perf_counter()
@@ -261,7 +261,7 @@ def _online_deviations(backend: Backend, keyframes: list[Keyframe], plane_map: P
     `ObservedPlane`s), `T_B_S` and `T_B_C`. With `deviations.online_refine`, where the offline
     rounds take the backend's graph (they change its landmarks); else at its own solution."""
     if cfg.deviations.online_refine:
-        refined = OfflineEstimator(plane_map, cfg.backend, initial, oracle=truth, causal=backend).refine(keyframes)
+        refined = OfflineEstimator(plane_map, cfg.backend, initial, oracle=truth, causal=backend, tilt=backend.tilt).refine(keyframes)
         return refined.observed_planes, refined.T_B_S, refined.T_B_C
     planes, T_S_B = observed_planes_isam2(backend.graph, backend.landmarks.current(),
                                           BatchSolver(cfg.backend.offline.max_iterations, cfg.backend.offline.relative_error_tol))

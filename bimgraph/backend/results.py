@@ -344,4 +344,4 @@ def write_summary(out_dir: Path, results: Results, inputs: dict | None = None, f
     """`summary.json` of a run written by `write_results`."""
     write_json(Path(out_dir) / SUMMARY, summary_record(
         results.mode, results.timings, [], len(results.stamps), results.landmarks, finished, results.rounds, inputs,
-        results.bim_tolerance, results.frontend_drift, results.alignment_challenge))
+        results.bim_tolerance, results.frontend_drift, results.alignment_challenge, results.depth_tilt_sigma_per_m))

@@ -19,7 +19,7 @@ from bimgraph.evaluation.runs import run_summary
 from bimgraph.geometry import normalise_plane
 from bimgraph.sequence.format import Camera
 from bimgraph.sim.render import distortion_basis
-from factors import anchor_step, predict_local_plane, tilt_sensitivity
+from factors import anchor_step, predict_local_plane, tilt_link_factor, tilt_sensitivity
 
 TILT_SIGMA = 0.002
 # (TUM RGB-D's freiburg1 camera: its principal point is off the image's centre)
@@ -87,7 +87,7 @@ def test_the_link_moves_the_predicted_plane_as_the_tilt_does(seed):
         G = tilt_sensitivity(plane_K, tilt.dm_dtau)
         assert np.allclose((moved[0] - moved[1]) / 2, G @ tau, rtol=1e-4, atol=1e-12)
 
-        link = tilt.link(X(1), MOVED_ANCHOR(0), 7, T_S_A, J[:, 6:12], plane_K)
+        link = tilt_link_factor(X(1), MOVED_ANCHOR(0), TILT(7), T_S_A, K, tilt.link_noise)
         values = gtsam.Values()
         values.insert(X(1), T_S_A)
         values.insert(TILT(7), tau * 1e3)

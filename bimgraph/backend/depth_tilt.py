@@ -18,9 +18,10 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from bimgraph.backend.graph import MOVED_ANCHOR, TILT
+from bimgraph.backend.graph import MOVED_ANCHOR, TILT, FactorBuilder, L, X
+from bimgraph.geometry import normalise_plane
 from bimgraph.sequence.format import Camera
-from factors import anchor_step, inverse_depth_sensitivity, tilt_link_factor
+from factors import anchor_step, inverse_depth_sensitivity, predict_local_plane, tilt_link_factor
 
 _SYMBOLS = {gtsam.Symbol(TILT(0)).chr(), gtsam.Symbol(MOVED_ANCHOR(0)).chr()}
 # the tie is a constraint, not a measurement: tight against any plane's sigma (0.01 deg, 0.1
@@ -40,12 +41,15 @@ class DepthTilt:
     def prior(self, k: int) -> gtsam.NonlinearFactor:
         return gtsam.PriorFactorVector(TILT(k), np.zeros(2), self.prior_noise)
 
-    def link(self, key_anchor: int, key_moved: int, k: int, T_S_A: gtsam.Pose3, dplane_dA: np.ndarray,
-             plane_C: np.ndarray) -> gtsam.NonlinearFactor:
-        """The tie of the moved anchor `key_moved` of keyframe k's observation `plane_C` to the
-        anchor (now at `T_S_A`); `dplane_dA` as `factors.anchor_step` takes it."""
-        return tilt_link_factor(key_anchor, key_moved, TILT(k), T_S_A, anchor_step(plane_C, dplane_dA, self.dm_dtau),
-                                self.link_noise)
+    def observation(self, build: FactorBuilder, k: int, j: int, anchor: int, moved: int, T_S_C: gtsam.Pose3,
+                    T_S_A: gtsam.Pose3, plane_A: np.ndarray, plane_C: np.ndarray, cov: np.ndarray) -> list[gtsam.NonlinearFactor]:
+        """Keyframe k (at `T_S_C`) sees landmark j (`plane_A` in its anchor keyframe, at
+        `T_S_A`) as `plane_C`, from the moved anchor `moved`: the tie of the moved anchor to the
+        anchor, made there (where the moved anchor starts, too), and the plane factor."""
+        _, J = predict_local_plane(T_S_C, T_S_A, gtsam.OrientedPlane3(normalise_plane(plane_A)), jacobian=True)
+        K = anchor_step(plane_C, J[:, 6:12], self.dm_dtau)
+        return [tilt_link_factor(X(anchor), moved, TILT(k), T_S_A, K, self.link_noise),
+                build.observation_of(X(k), moved, L(j), plane_C, cov)]
 
 
 def without_tilt(values: gtsam.Values) -> gtsam.Values:

@@ -43,7 +43,7 @@ from bimgraph.backend.reduced import reduced
 from bimgraph.backend.robust_alignment import RobustAlignment
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig
-from bimgraph.geometry import inverse, normalise_plane, plane_from_frame
+from bimgraph.geometry import inverse, plane_from_frame
 from bimgraph.sequence.format import Keyframe
 from factors.plane import predict_local_plane
 
@@ -214,11 +214,9 @@ class OfflineEstimator:
             return [build.observation(k, lm.anchor, lm.id, obs.plane_C, obs.cov)]
         moved = MOVED_ANCHOR(len(self._observation_factors))
         T_S_A = values.atPose3(X(lm.anchor))
-        _, J = predict_local_plane(values.atPose3(X(k)), T_S_A, gtsam.OrientedPlane3(normalise_plane(lm.plane_A)),
-                                   jacobian=True)
         values.insert(moved, T_S_A)
-        return [self.tilt.link(X(lm.anchor), moved, k, T_S_A, J[:, 6:12], obs.plane_C),
-                build.observation_of(X(k), moved, L(lm.id), obs.plane_C, obs.cov)]
+        return self.tilt.observation(build, k, lm.id, lm.anchor, moved, values.atPose3(X(k)), T_S_A, lm.plane_A,
+                                     obs.plane_C, obs.cov)
 
     def _settle_drift(self, keyframes: list[Keyframe], observations, values: gtsam.Values, solve: BatchSolver,
                       graph: gtsam.NonlinearFactorGraph) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:

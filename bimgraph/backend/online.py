@@ -23,9 +23,7 @@ from bimgraph.backend.online_bim import OnlineBimAssociation
 from bimgraph.backend.online_judgement import OnlineJudgement
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig, Isam2Config
-from bimgraph.geometry import normalise_plane
 from bimgraph.sequence.format import Keyframe
-from factors import predict_local_plane
 
 Oracle = Mapping[tuple[int, int], "str | None"]
 
@@ -280,10 +278,10 @@ class Backend:
             T_S_C = T_S_A
         else:
             T_S_C = self.graph.estimate([X(k)]).atPose3(X(k)) if T_S_C is None else pose3(T_S_C)
-        _, J = predict_local_plane(T_S_C, T_S_A, gtsam.OrientedPlane3(normalise_plane(lm.plane_A)), jacobian=True)
         self.graph.insert(moved, T_S_A)
-        self.graph.add(self.tilt.link(X(lm.anchor), moved, k, T_S_A, J[:, 6:12], plane_C))
-        self.graph.add_observation(j, self.build.observation_of(X(k), moved, L(j), plane_C, cov))
+        link, factor = self.tilt.observation(self.build, k, j, lm.anchor, moved, T_S_C, T_S_A, lm.plane_A, plane_C, cov)
+        self.graph.add(link)
+        self.graph.add_observation(j, factor)
 
     def _freezable(self, lm: Landmark) -> bool:
         """Whether the landmark is level (`isam2.freeze_max_tilt_deg`) and no face of the map is

@@ -35,7 +35,6 @@ class OnlineBimAssociation:
         self.bim = BimAssociator(faces, cfg.bim_association)
         self.extrinsic_covariance = extrinsic_covariance
         self.observe = observe
-        self.merge = observe is not None
         self.slam_gate = slam_gate
         # (landmark, face) pairs found not one plane with another landmark of the face: the one
         # farther from it stays apart from it (online here, offline when merging)
@@ -45,7 +44,7 @@ class OnlineBimAssociation:
 
     def seen(self, k: int, obs: Observation) -> None:
         """Keep keyframe k's observation, which a merge may move to another landmark."""
-        if self.merge:
+        if self.observe is not None:
             self._observations[k, obs.index] = obs
 
     def take_merged(self) -> list[int]:
@@ -153,7 +152,7 @@ class OnlineBimAssociation:
         lm = self.landmarks[m.landmark]
         for rival in [other for other in self.landmarks.items if other.face == m.face and other.id != lm.id]:
             d2 = one_plane_d2(rival, lm, self.graph.joint)
-            if self.merge and d2 <= self.slam_gate:
+            if self.observe is not None and d2 <= self.slam_gate:
                 self._merge(rival, lm)
                 return True
             if d2 <= self.cfg.offline.merge_gate:

@@ -109,7 +109,8 @@ def evaluate(plane_map: PlaneMap, keyframes, initial, truth, T_B_C_true, T_B_S_t
     start = time.perf_counter()
     res = est.run(keyframes)
     t_backend = time.perf_counter() - start
-    data = write_deviation_outputs(out_dir, plane_map, res.observed_planes, res.T_B_S, res.T_B_C, camera, dev_cfg)
+    data = write_deviation_outputs(out_dir, plane_map, res.observed_planes, res.T_B_S, res.T_B_C, camera, dev_cfg,
+                                   rival=res.rival_alignment)
     t_report = time.perf_counter() - start - t_backend
     out = score(data, truth, dev_cfg)
     if kinds is not None:

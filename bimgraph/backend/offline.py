@@ -27,6 +27,7 @@ from collections.abc import Callable
 
 import gtsam
 import numpy as np
+from scipy.special import expit
 
 from bimgraph.backend import drift
 from bimgraph.backend.alignment import Alignment
@@ -43,9 +44,13 @@ from bimgraph.backend.reduced import reduced
 from bimgraph.backend.robust_alignment import RobustAlignment
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig
+from bimgraph.deviations.estimate import RivalAlignment, about_estimate
 from bimgraph.geometry import inverse, plane_from_frame
 from bimgraph.sequence.format import Keyframe
 from factors.plane import predict_local_plane
+
+# a rival consensus less likely than this changes no figure the run reports
+_NEGLIGIBLE = 1e-6
 
 
 class OfflineEstimator:
@@ -78,6 +83,7 @@ class OfflineEstimator:
         self.tilt = tilt
         # how the consensus fared against its complement (`_challenge`), for the summary
         self.challenge: dict | None = None
+        self._losing_verdicts: dict[tuple[int, str], str] | None = None  # the consensus that lost it
 
     def run(self, keyframes: list[Keyframe]) -> Results:
         start = time.perf_counter()
@@ -133,8 +139,11 @@ class OfflineEstimator:
                 t_opt += time.perf_counter() - t2
             if not changed:
                 break
+        t2 = time.perf_counter()
+        rival = self._rival(keyframes, observations, values, solve)
+        t_opt += time.perf_counter() - t2
         timings.update(optimisation_s=t_opt, bim_association_s=t_assoc, total_s=timings.get("online_pass_s", 0.0) + time.perf_counter() - start)
-        return self._results(keyframes, values, marginals, timings, rounds)
+        return self._results(keyframes, values, marginals, timings, rounds, rival)
 
     def _challenge(self, keyframes: list[Keyframe], observations, values: gtsam.Values,
                    solve: BatchSolver) -> gtsam.Values | None:
@@ -153,6 +162,7 @@ class OfflineEstimator:
         matches = self._matches()
         if all(verdict == KEPT for verdict in self.judge.verdicts.values()):
             return None
+        ours_verdicts = dict(self.judge.verdicts)
         flipped = {m: DIRECTION if verdict == KEPT else KEPT for m, verdict in self.judge.verdicts.items()}
         start = solve(self._graph(keyframes, observations, values, self.judge.factors(flipped)), values)
         rival_verdicts = self.judge.verdicts_at(matches, start)
@@ -163,6 +173,7 @@ class OfflineEstimator:
         self.challenge = {"complement_taken": bool(margin < 0), "margin": round(abs(float(margin)), 3),
                           "contested_faces": sorted({face for (j, face) in matches
                                                      if rival_verdicts[j, face] != self.judge.verdicts[j, face]})}
+        self._losing_verdicts = rival_verdicts if margin >= 0 else ours_verdicts
         if margin >= 0:
             return None
         judged = reduced(without_bim, rival, [lm for lm in self.landmarks.current() if lm.face is not None])
@@ -305,21 +316,54 @@ class OfflineEstimator:
                 break  # the face's other landmarks meet the one left next round
         return changed
 
-    def _observed_planes(self, values, marginals) -> list:
+    def _observed_planes(self, values, marginals, bim_factor: Callable[[Landmark], gtsam.NonlinearFactor | None]) -> list:
         """Every active landmark as the deviation step reads it; a matched landmark's plane-to-BIM
-        factor is the one of the graph `values` and `marginals` solve."""
+        factor (`bim_factor`) is the one of the graph `values` and `marginals` solve."""
         from bimgraph.deviations.graph import observed_planes  # (it imports the backend)
 
         return observed_planes(self.landmarks.current(), values, marginals,
-                               {lm.id: self.judge.judged_factor(lm) for lm in self.landmarks.current() if lm.face is not None})
+                               {lm.id: bim_factor(lm) for lm in self.landmarks.current() if lm.face is not None})
 
-    def _results(self, keyframes, values, marginals, timings, rounds) -> Results:
+    def _rival(self, keyframes: list[Keyframe], observations, values: gtsam.Values, solve: BatchSolver) -> RivalAlignment | None:
+        """The consensus `_challenge` turned down, solved again from where the rounds ended,
+        with its probability against the estimate's, `1 / (1 + e^margin)`, the margin the
+        difference of their truncated-least-squares costs (as `_challenge` compares them: a
+        negative log-likelihood ratio). None where it judges every face as the estimate does,
+        or is less likely than `_NEGLIGIBLE`. Where two parallel walls are all that place a
+        direction and one of them is built off plan, the data cannot tell which one: a
+        2Storey depth walk's two consensuses 0.25 apart (probability 0.44), each putting the
+        other wall 5.5 cm off."""
+        if self._losing_verdicts is None:
+            return None
+        matches = self._matches()
+        verdicts = {m: self._losing_verdicts.get(m, self.judge.verdicts[m]) for m in matches}
+        if all(verdicts[m] == self.judge.verdicts[m] for m in matches):
+            return None
+        factors = self.judge.factors(verdicts)
+        graph = self._graph(keyframes, observations, values, factors)
+        rival = solve(graph, values)
+        without_bim = self._graph(keyframes, observations, values, lambda lm: None)
+        margin = self.judge.tls_cost(without_bim, matches, rival) - self.judge.tls_cost(without_bim, matches, values)
+        probability = float(expit(-margin))
+        self.challenge["rival_probability"] = round(probability, 4)
+        if probability < _NEGLIGIBLE:
+            return None
+        marginals = JointMarginals(graph, rival, bim_keys(self.landmarks.current()))
+        T_S_B = rival.atPose3(E)
+        planes = self._observed_planes(rival, marginals, factors)
+        return RivalAlignment(probability, T_S_B.matrix(), cov_T_B_S(T_S_B, marginals.marginal(E)) + self.online.locked_cov,
+                              {plane.landmark: plane for plane in planes})
+
+    def _results(self, keyframes, values, marginals, timings, rounds, rival: RivalAlignment | None) -> Results:
         start = time.perf_counter()
-        planes = self._observed_planes(values, marginals)
+        planes = self._observed_planes(values, marginals, self.judge.judged_factor)
         timings["deviation_covariances_s"] = time.perf_counter() - start
         T_S_B = values.atPose3(E)
         T_B_S = T_S_B.inverse().matrix()
         cov = cov_T_B_S(T_S_B, marginals.marginal(E)) + self.online.locked_cov
+        if rival is not None:  # (the rival's mean in the estimate's tangent: T_B_S_rival = T_B_S Exp(d))
+            d = gtsam.Pose3.Logmap(gtsam.Pose3(T_B_S).inverse() * gtsam.Pose3(inverse(rival.T_S_B)))
+            cov = about_estimate(cov, rival.cov_T_B_S, d, rival.probability)
         T_S_C = [values.atPose3(X(kf.index)).matrix() for kf in keyframes]
         self.online.resolve_faces(T_B_S)
         for lm in self.landmarks.current():
@@ -340,7 +384,7 @@ class OfflineEstimator:
                        unobservable=self.online.unobservable_with(normals),
                        landmarks=self.landmarks.current(), timings=timings, rounds=rounds, observed_planes=planes,
                        bim_tolerance=self.judge.tolerance, frontend_drift=self.odometry.summary() if self.cfg.offline.estimate_drift else None,
-                       alignment_challenge=self.challenge,
+                       alignment_challenge=self.challenge, rival_alignment=rival,
                        depth_tilt_sigma_per_m=self.tilt.sigma_per_m if self.tilt is not None else None)
 
     def _revise(self, values: gtsam.Values) -> bool:

@@ -213,7 +213,8 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
         # as online: every other output first, `finished` once the report is written too
         write_results(out_dir, results, named, finished=False)
         report_start = time.perf_counter()
-        _write_report(out_dir, plane_map, results.observed_planes, results.T_B_S, results.T_B_C, meta.camera, cfg)
+        _write_report(out_dir, plane_map, results.observed_planes, results.T_B_S, results.T_B_C, meta.camera, cfg,
+                      results.rival_alignment)
         results.timings.update(deviation_report_s=time.perf_counter() - report_start, total_s=time.perf_counter() - start)
         write_summary(out_dir, results, named)
         return results
@@ -240,16 +241,16 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
     if stage is not None:  # (about as long as offline rounds: seconds to a minute)
         stage("measuring the walls")
     report_start = time.perf_counter()
-    planes, T_B_S, T_B_C = _online_deviations(backend, sequence.keyframes, plane_map, cfg, initial, truth, writer.T_B_C)
-    _write_report(out_dir, plane_map, planes, T_B_S, T_B_C, meta.camera, cfg)
+    planes, T_B_S, T_B_C, rival = _online_deviations(backend, sequence.keyframes, plane_map, cfg, initial, truth, writer.T_B_C)
+    _write_report(out_dir, plane_map, planes, T_B_S, T_B_C, meta.camera, cfg, rival)
     writer.finish({"deviation_report_s": time.perf_counter() - report_start, "total_s": time.perf_counter() - start})
     return None
 
 
-def _write_report(out_dir: Path, plane_map: PlaneMap, planes, T_B_S, T_B_C, camera, cfg: Config) -> None:
-    """The deviation report, whole or not at all."""
+def _write_report(out_dir: Path, plane_map: PlaneMap, planes, T_B_S, T_B_C, camera, cfg: Config, rival) -> None:
+    """The deviation report, whole or not at all (`rival`: the robust alignment's runner-up, or None)."""
     try:
-        write_deviation_outputs(out_dir, plane_map, planes, T_B_S, T_B_C, camera, cfg.deviations)
+        write_deviation_outputs(out_dir, plane_map, planes, T_B_S, T_B_C, camera, cfg.deviations, rival=rival)
     except BaseException:
         _remove(out_dir, DEVIATION_FILES)  # (a report written in part is no report)
         raise
@@ -258,11 +259,12 @@ def _write_report(out_dir: Path, plane_map: PlaneMap, planes, T_B_S, T_B_C, came
 def _online_deviations(backend: Backend, keyframes: list[Keyframe], plane_map: PlaneMap, cfg: Config, initial: Alignment,
                        truth, T_B_C_causal: list[np.ndarray]):
     """What the deviation report of an online run is measured from: the landmarks (as
-    `ObservedPlane`s), `T_B_S` and `T_B_C`. With `deviations.online_refine`, where the offline
-    rounds take the backend's graph (they change its landmarks); else at its own solution."""
+    `ObservedPlane`s), `T_B_S`, `T_B_C` and the robust alignment's runner-up. With
+    `deviations.online_refine`, where the offline rounds take the backend's graph (they change
+    its landmarks); else at its own solution."""
     if cfg.deviations.online_refine:
         refined = OfflineEstimator(plane_map, cfg.backend, initial, oracle=truth, causal=backend, tilt=backend.tilt).refine(keyframes)
-        return refined.observed_planes, refined.T_B_S, refined.T_B_C
+        return refined.observed_planes, refined.T_B_S, refined.T_B_C, refined.rival_alignment
     planes, T_S_B = observed_planes_isam2(backend.graph, backend.landmarks.current(),
                                           BatchSolver(cfg.backend.offline.max_iterations, cfg.backend.offline.relative_error_tol))
-    return planes, inverse(T_S_B), T_B_C_causal
+    return planes, inverse(T_S_B), T_B_C_causal, None

@@ -131,6 +131,7 @@ class Challenge(_File):
     complement_taken: bool
     margin: float
     contested_faces: list[str]
+    rival_probability: float | None = Field(default=None, ge=0, le=1)
 
 
 class SummaryFile(_File):

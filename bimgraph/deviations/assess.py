@@ -22,9 +22,11 @@ from bimgraph.deviations.estimate import (
     DeviationReport,
     FaceReport,
     ObservedPlane,
+    RivalAlignment,
     UnplannedPlane,
     classify,
     face_deviation,
+    mixed,
 )
 from bimgraph.deviations.visibility import face_shape
 from bimgraph.geometry import inverse, normal_angle_deg, plane_frame, plane_to_frame, point_plane_distance
@@ -105,10 +107,11 @@ def _is_vertical(plane_B: np.ndarray, cfg: DeviationConfig) -> bool:
 
 
 def assess(plane_map: PlaneMap, planes: Sequence[ObservedPlane], T_S_B: np.ndarray, cfg: DeviationConfig,
-           expected_views: Mapping[str, int] | None = None) -> DeviationReport:
+           expected_views: Mapping[str, int] | None = None, rival: RivalAlignment | None = None) -> DeviationReport:
     """The deviation report. `planes` are all the graph's landmarks; `expected_views` counts,
     per face id, the keyframes at which the face should have been in view (see
-    `visibility.expected_view_counts`); without it no face is listed as possibly not built."""
+    `visibility.expected_view_counts`); without it no face is listed as possibly not built.
+    With the robust alignment's `rival`, each face's sigmas cover both alignments (`mixed`)."""
     report = DeviationReport(cfg.tolerance_m, cfg.tilt_tolerance_deg, cfg.k_sigma)
     faces = {f.id: f for f in plane_map.faces}
     expected = expected_views or {}
@@ -117,6 +120,8 @@ def assess(plane_map: PlaneMap, planes: Sequence[ObservedPlane], T_S_B: np.ndarr
 
     def measure(face: BimFace, plane: ObservedPlane, how: str):
         dev = face_deviation(face, plane, T_S_B)
+        if rival is not None and plane.landmark in rival.planes:
+            dev = mixed(dev, face_deviation(face, rival.planes[plane.landmark], rival.T_S_B), rival.probability)
         entry = FaceReport(face.id, face.wall_guid, face.wall_name, face.storey, classify(dev, plane.n_keyframes, cfg),
                            plane.n_keyframes, dev, plane.landmark, how, expected.get(face.id, 0))
         # Two landmarks on one face (two visits, or a glimpse beside the wall's landmark): the

@@ -27,7 +27,7 @@ the observations and the other faces decide: Baarda's externally studentised res
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import gtsam
@@ -75,6 +75,29 @@ class ObservedPlane:
 
     def extent_in(self, T_X_S: np.ndarray) -> np.ndarray:
         return np.asarray(self.extent_S).reshape(-1, 3) @ T_X_S[:3, :3].T + T_X_S[:3, 3]
+
+
+@dataclass(frozen=True)
+class RivalAlignment:
+    """The robust alignment's runner-up: the consensus of walls it judged otherwise, with the
+    probability that it, not the estimate's, is the one on plan, the extrinsic `T_S_B` under
+    it and every landmark read under it (by landmark id). Where the data barely choose (two
+    parallel walls seen alone, one of them built off plan: which one is a coin toss), each
+    deviation is reported over both (`mixed`)."""
+
+    probability: float
+    T_S_B: np.ndarray
+    cov_T_B_S: np.ndarray  # 6x6, as `Results.cov_T_B_S`, under it
+    planes: dict[int, ObservedPlane]
+
+
+def about_estimate(cov, cov_rival, difference, probability: float) -> np.ndarray:
+    """The second moment about the estimate of the mixture of the estimate's Gaussian (`cov`)
+    and the rival's (`cov_rival`, its mean `difference` away), the rival with `probability`:
+    `(1 - p) cov + p (cov_rival + d d^T)`, a covariance that NEES tests honestly whichever of
+    the two holds."""
+    d = np.atleast_1d(difference)
+    return (1.0 - probability) * np.asarray(cov) + probability * (np.asarray(cov_rival) + np.outer(d, d))
 
 
 @dataclass(frozen=True)
@@ -189,6 +212,17 @@ def face_deviation(face: BimFace, plane: ObservedPlane, T_S_B: np.ndarray) -> De
         return deviation_from_residual(e, J @ plane.cov @ J.T, face, measurable=False)
     delta, cov = loo
     return deviation_from_residual(e + J @ delta, J @ cov @ J.T, face)
+
+
+def mixed(dev: Deviation, rival: Deviation, probability: float) -> Deviation:
+    """`dev`, its sigmas made the root mean square error about it when the alignment `rival`
+    was measured under holds with `probability` (`about_estimate`), the offset's and the
+    tilt's alike."""
+    def rms(x, sigma, x_rival, sigma_rival):
+        return float(np.sqrt(about_estimate(sigma ** 2, sigma_rival ** 2, x_rival - x, probability)[0, 0]))
+
+    return replace(dev, offset_sigma_m=rms(dev.offset_m, dev.offset_sigma_m, rival.offset_m, rival.offset_sigma_m),
+                   tilt_sigma_deg=rms(dev.tilt_deg, dev.tilt_sigma_deg, rival.tilt_deg, rival.tilt_sigma_deg))
 
 
 def excess_sigma(dev: Deviation, cfg: DeviationConfig) -> float:

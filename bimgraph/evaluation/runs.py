@@ -132,8 +132,9 @@ def run_summary(out_dir: Path) -> list[tuple[str, str]]:
         rows.append(("depth tilt", f"a variable per keyframe, prior sigma {1000 * tilt:g} mm per m^2 of depth at the image's border"))
     if challenge := summary.alignment_challenge:
         taken = "the complement of the first consensus, ahead" if challenge.complement_taken else "consensus ahead of its complement"
+        rival = "" if challenge.rival_probability is None else f", {100 * challenge.rival_probability:.2g} % likely"
         rows.append(("alignment", f"{taken} by {challenge.margin:.1f} ({len(challenge.contested_faces)} faces "
-                                  "judged otherwise there)"))
+                                  f"judged otherwise there{rival})"))
     if (out_dir / DEVIATIONS_JSON).is_file():
         deviations = load_deviations(out_dir / DEVIATIONS_JSON)
         counts = deviations.counts()

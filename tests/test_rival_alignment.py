@@ -2,7 +2,8 @@
 the room. East and west wall are all that place the walk along x, and each explains the data as
 well as the other: which one is off is a coin toss. The offline estimate keeps one consensus,
 and its covariance and the deviation report cover the other too (`OfflineEstimator._rival`,
-`bimgraph.deviations.estimate.RivalAlignment`)."""
+`bimgraph.deviations.estimate.RivalAlignment`); online, the extrinsic's covariance
+(`OnlineJudgement._rival`)."""
 
 import numpy as np
 import pytest
@@ -10,6 +11,7 @@ from scipy.stats import chi2
 from test_deviations_backend import moved_plan
 
 from bimgraph.backend.offline import OfflineEstimator
+from bimgraph.backend.online import Backend
 from bimgraph.backend.synthetic import make_scene
 from bimgraph.config import BackendConfig, DeviationConfig
 from bimgraph.deviations.assess import assess
@@ -18,10 +20,14 @@ from bimgraph.evaluation.metrics import extrinsic_nees
 from bimgraph.geometry import inverse
 
 
+def one_room_world():
+    scene = make_scene(120, rooms=(1, 1), seed=0, drift_rot_deg=0.01, drift_trans_m=0.001)
+    return scene, moved_plan(scene.plane_map, {"r00E": 0.06})
+
+
 @pytest.fixture(scope="module")
 def one_room():
-    scene = make_scene(120, rooms=(1, 1), seed=0, drift_rot_deg=0.01, drift_trans_m=0.001)
-    plan = moved_plan(scene.plane_map, {"r00E": 0.06})
+    scene, plan = one_room_world()
     est = OfflineEstimator(plan, BackendConfig(), scene.initial)
     return scene, plan, est, est.run(scene.keyframes)
 
@@ -40,6 +46,16 @@ def test_the_extrinsic_covariance_covers_both(one_room):
     this seed) at NEES 30."""
     scene, _, _, res = one_room
     assert extrinsic_nees(res.T_B_S, res.cov_T_B_S, scene.T_B_S) < chi2.ppf(0.95, 3)
+
+
+def test_online_the_extrinsic_covariance_covers_both():
+    """The online judgement keeps the east wall's consensus too (the extrinsic 6.1 cm off):
+    alone, its covariance put that at NEES 27."""
+    scene, plan = one_room_world()
+    backend = Backend(plan, BackendConfig(), scene.initial)
+    last = [backend.process(kf) for kf in scene.keyframes][-1]
+    assert backend.judge.alignment.verdicts[next(m for m in backend.judge.alignment.verdicts if m[1] == "r00W")] != "kept"
+    assert extrinsic_nees(last.T_B_S, last.cov_T_B_S, scene.T_B_S) < chi2.ppf(0.95, 3)
 
 
 def test_no_wall_is_reported_off_plan_on_a_coin_toss(one_room):

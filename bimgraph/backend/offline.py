@@ -34,7 +34,7 @@ from bimgraph.backend.alignment import Alignment
 from bimgraph.backend.associate_bim import candidate
 from bimgraph.backend.depth_tilt import DepthTilt, without_tilt
 from bimgraph.backend.graph import MOVED_ANCHOR, TILT, E, L, X, BatchSolver, bim_keys, cov_T_B_S, pose3
-from bimgraph.backend.landmarks import DIRECTION, KEPT, Landmark, transform_points
+from bimgraph.backend.landmarks import KEPT, Landmark, transform_points
 from bimgraph.backend.marginals import JointMarginals
 from bimgraph.backend.matches import face_misfit, one_plane_d2, revision_reason, unmatch
 from bimgraph.backend.odometry import OdometryModel
@@ -163,11 +163,12 @@ class OfflineEstimator:
         if all(verdict == KEPT for verdict in self.judge.verdicts.values()):
             return None
         ours_verdicts = dict(self.judge.verdicts)
-        flipped = {m: DIRECTION if verdict == KEPT else KEPT for m, verdict in self.judge.verdicts.items()}
-        start = solve(self._graph(keyframes, observations, values, self.judge.factors(flipped)), values)
-        rival_verdicts = self.judge.verdicts_at(matches, start)
-        rival = solve(self._graph(keyframes, observations, start, self.judge.factors(rival_verdicts)), start)
-        ours = solve(self._graph(keyframes, observations, values, self.judge.factors(self.judge.verdicts)), values)
+
+        def solve_under(verdicts: dict, start: gtsam.Values) -> gtsam.Values:
+            return solve(self._graph(keyframes, observations, start, self.judge.factors(verdicts)), start)
+
+        rival_verdicts, rival = self.judge.complement(matches, solve_under, values)
+        ours = solve_under(self.judge.verdicts, values)
         without_bim = self._graph(keyframes, observations, values, lambda lm: None)
         margin = self.judge.tls_cost(without_bim, matches, rival) - self.judge.tls_cost(without_bim, matches, ours)
         self.challenge = {"complement_taken": bool(margin < 0), "margin": round(abs(float(margin)), 3),

@@ -151,7 +151,7 @@ class Backend:
         is the extrinsic's estimate, if the caller has it."""
         if T_S_B is None:
             T_S_B = self.graph.estimate([E]).atPose3(E)
-        return cov_T_B_S(T_S_B, self.graph.marginal(E)) + self.locked_cov
+        return cov_T_B_S(T_S_B, self.graph.marginal(E)) + self.locked_cov + self.judge.rival_cov
 
     def _update_everything(self, k: int) -> gtsam.Values:
         """Apply what was queued for the whole graph (every odometry factor, every plane-to-BIM

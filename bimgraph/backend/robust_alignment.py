@@ -164,16 +164,35 @@ class RobustAlignment:
         direction = self._squared_residuals(matches, values, landmarks, free_offset=True) <= c2_direction
         return {m: KEPT if w else DIRECTION if d else OUT for m, w, d in zip(matches, whole, direction)}
 
-    def tls_cost(self, without_bim: gtsam.NonlinearFactorGraph, matches: list[tuple[int, str]], values: gtsam.Values) -> float:
+    def tls_cost(self, without_bim: gtsam.NonlinearFactorGraph, matches: list[tuple[int, str]], values: gtsam.Values,
+                 landmarks: Mapping[int, Landmark] | None = None) -> float:
         """The objective the verdicts are chosen by: every factor of `without_bim` (all but the
-        plane-to-BIM ones) plus `min(r^2, c^2) / 2` of each plane-to-BIM factor of `matches`."""
+        plane-to-BIM ones) plus `min(r^2, c^2) / 2` of each plane-to-BIM factor of `matches`
+        (of the graph that holds `landmarks`, default the estimator's)."""
         c2 = chi2.ppf(self.cfg.gnc_probability, 3)
-        return without_bim.error(values) + 0.5 * float(np.minimum(self._squared_residuals(matches, values), c2).sum())
+        return without_bim.error(values) + 0.5 * float(np.minimum(self._squared_residuals(matches, values, landmarks), c2).sum())
 
-    def factors(self, verdicts: dict[tuple[int, str], str]) -> Callable[[Landmark], gtsam.NonlinearFactor | None]:
-        """Each landmark's plane-to-BIM factor under `verdicts`, Gaussian (for the estimator's
-        graph or `Reduced.graph`)."""
-        return lambda lm: self.factor(lm, 1.0, verdicts[lm.id, lm.face])
+    def complement(self, matches: list[tuple[int, str]], solve_under: Callable[[dict, gtsam.Values], gtsam.Values],
+                   start: gtsam.Values, landmarks: Mapping[int, Landmark] | None = None,
+                   kept_as: str | None = DIRECTION) -> tuple[dict, gtsam.Values]:
+        """The consensus of the walls the verdicts did not keep whole: those kept whole, and the
+        ones kept taken as `kept_as` (held by their direction; None: kept under the robust
+        kernel), solved from `start` (`solve_under(verdicts, start)` solves the graph under
+        those verdicts), judged there and solved under its own verdicts. Returns (its
+        verdicts, its estimate)."""
+        flipped = {m: kept_as if verdict == KEPT else KEPT for m, verdict in self.verdicts.items()}
+        start = solve_under(flipped, start)
+        verdicts = self.verdicts_at(matches, start, landmarks)
+        return verdicts, solve_under(verdicts, start)
+
+    def factors(self, verdicts: dict[tuple[int, str], str | None]) -> Callable[[Landmark], gtsam.NonlinearFactor | None]:
+        """Each landmark's plane-to-BIM factor under `verdicts`, Gaussian, or kept under the
+        robust kernel where the verdict is None (for the estimator's graph or `Reduced.graph`)."""
+        def factor(lm: Landmark) -> gtsam.NonlinearFactor | None:
+            verdict = verdicts[lm.id, lm.face]
+            return self.factor(lm, None, KEPT) if verdict is None else self.factor(lm, 1.0, verdict)
+
+        return factor
 
     def _judged(self, matches, reduced: Reduced, values: gtsam.Values, solve: BatchSolver):
         """The verdicts at `values`, the estimate re-solved under them, and the graph it

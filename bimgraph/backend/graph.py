@@ -100,6 +100,12 @@ def cov_T_B_S(T_S_B: gtsam.Pose3, cov_E: np.ndarray) -> np.ndarray:
     return Ad @ cov_E @ Ad.T
 
 
+def extrinsic_difference(T_S_B: gtsam.Pose3, T_S_B_other: gtsam.Pose3) -> np.ndarray:
+    """`d` with `T_B_S_other = T_B_S Exp(d)`: another estimate of the extrinsic in the tangent
+    `cov_T_B_S` is written in."""
+    return gtsam.Pose3.Logmap(T_S_B * T_S_B_other.inverse())
+
+
 class BatchSolver:
     """Solves a batch graph from a starting estimate, to `max_iterations` or until an iteration
     improves the error by less than `relative_error_tol` of it: Powell's dogleg (gtsam's), which

@@ -33,7 +33,7 @@ from bimgraph.backend import drift
 from bimgraph.backend.alignment import Alignment
 from bimgraph.backend.associate_bim import candidate
 from bimgraph.backend.depth_tilt import DepthTilt, without_tilt
-from bimgraph.backend.graph import MOVED_ANCHOR, TILT, E, L, X, BatchSolver, bim_keys, cov_T_B_S, pose3
+from bimgraph.backend.graph import MOVED_ANCHOR, TILT, E, L, X, BatchSolver, bim_keys, cov_T_B_S, extrinsic_difference, pose3
 from bimgraph.backend.landmarks import KEPT, Landmark, transform_points
 from bimgraph.backend.marginals import JointMarginals
 from bimgraph.backend.matches import face_misfit, one_plane_d2, revision_reason, unmatch
@@ -170,7 +170,7 @@ class OfflineEstimator:
         rival_verdicts, rival = self.judge.complement(matches, solve_under, values)
         ours = solve_under(self.judge.verdicts, values)
         without_bim = self._graph(keyframes, observations, values, lambda lm: None)
-        margin = self.judge.tls_cost(without_bim, matches, rival) - self.judge.tls_cost(without_bim, matches, ours)
+        margin = self.judge.margin(without_bim, matches, rival, ours)
         self.challenge = {"complement_taken": bool(margin < 0), "margin": round(abs(float(margin)), 3),
                           "contested_faces": sorted({face for (j, face) in matches
                                                      if rival_verdicts[j, face] != self.judge.verdicts[j, face]})}
@@ -344,8 +344,7 @@ class OfflineEstimator:
         graph = self._graph(keyframes, observations, values, factors)
         rival = solve(graph, values)
         without_bim = self._graph(keyframes, observations, values, lambda lm: None)
-        margin = self.judge.tls_cost(without_bim, matches, rival) - self.judge.tls_cost(without_bim, matches, values)
-        probability = float(expit(-margin))
+        probability = float(expit(-self.judge.margin(without_bim, matches, rival, values)))
         self.challenge["rival_probability"] = round(probability, 4)
         if probability < _NEGLIGIBLE:
             return None
@@ -362,9 +361,8 @@ class OfflineEstimator:
         T_S_B = values.atPose3(E)
         T_B_S = T_S_B.inverse().matrix()
         cov = cov_T_B_S(T_S_B, marginals.marginal(E)) + self.online.locked_cov
-        if rival is not None:  # (the rival's mean in the estimate's tangent: T_B_S_rival = T_B_S Exp(d))
-            d = gtsam.Pose3.Logmap(gtsam.Pose3(T_B_S).inverse() * gtsam.Pose3(inverse(rival.T_S_B)))
-            cov = about_estimate(cov, rival.cov_T_B_S, d, rival.probability)
+        if rival is not None:
+            cov = about_estimate(cov, rival.cov_T_B_S, extrinsic_difference(T_S_B, pose3(rival.T_S_B)), rival.probability)
         T_S_C = [values.atPose3(X(kf.index)).matrix() for kf in keyframes]
         self.online.resolve_faces(T_B_S)
         for lm in self.landmarks.current():

@@ -19,7 +19,7 @@ import numpy as np
 from scipy.special import expit
 
 from bimgraph.backend.associate_bim import FaceIndex
-from bimgraph.backend.graph import E, BatchSolver, FactorBuilder, bim_keys
+from bimgraph.backend.graph import E, BatchSolver, FactorBuilder, bim_keys, extrinsic_difference
 from bimgraph.backend.incremental import IncrementalGraph
 from bimgraph.backend.landmarks import KEPT, LandmarkTable
 from bimgraph.backend.odometry import OdometryModel
@@ -83,10 +83,8 @@ class OnlineJudgement:
             matches, lambda v, start: self._solve(judged.graph(factors(v)), start), values, judged.landmarks, kept_as=None)
         if verdicts == self.alignment.verdicts:
             return none
-        without_bim = judged.graph(lambda lm: None)
-        margin = (self.alignment.tls_cost(without_bim, matches, rival, judged.landmarks)
-                  - self.alignment.tls_cost(without_bim, matches, values, judged.landmarks))
-        d = gtsam.Pose3.Logmap(values.atPose3(E) * rival.atPose3(E).inverse())
+        margin = self.alignment.margin(judged.graph(lambda lm: None), matches, rival, values, judged.landmarks)
+        d = extrinsic_difference(values.atPose3(E), rival.atPose3(E))
         return float(expit(-margin)) * np.outer(d, d)
 
     def stiff_rest(self, graph: IncrementalGraph, odometry: OdometryModel,

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bimgraph.backend.landmarks import Landmark
+from bimgraph.deviations.estimate import RivalAlignment
 from bimgraph.sequence.format import Keyframe
 
 
@@ -60,9 +61,9 @@ class Results:
     # offline: the robust alignment's consensus against its complement
     # (`OfflineEstimator._challenge`), if it ran
     alignment_challenge: dict | None = None
-    # offline: the consensus the challenge turned down, where it is not negligible
-    # (`bimgraph.deviations.estimate.RivalAlignment`); `cov_T_B_S` covers it too
-    rival_alignment: object | None = None
+    # offline: the consensus the challenge turned down, where it is not negligible; `cov_T_B_S`
+    # covers it too
+    rival_alignment: RivalAlignment | None = None
     # the depth tilt's prior sigma, where each keyframe's was a variable (`bimgraph.backend.depth_tilt`)
     depth_tilt_sigma_per_m: float | None = None
     # Every landmark with its joint covariance with E and its anchor, for the deviation step

@@ -172,6 +172,12 @@ class RobustAlignment:
         c2 = chi2.ppf(self.cfg.gnc_probability, 3)
         return without_bim.error(values) + 0.5 * float(np.minimum(self._squared_residuals(matches, values, landmarks), c2).sum())
 
+    def margin(self, without_bim: gtsam.NonlinearFactorGraph, matches: list[tuple[int, str]], rival: gtsam.Values,
+               ours: gtsam.Values, landmarks: Mapping[int, Landmark] | None = None) -> float:
+        """How much more `rival` costs than `ours` by `tls_cost`: the log of how many times
+        likelier the data are under ours (negative: under the rival)."""
+        return self.tls_cost(without_bim, matches, rival, landmarks) - self.tls_cost(without_bim, matches, ours, landmarks)
+
     def complement(self, matches: list[tuple[int, str]], solve_under: Callable[[dict, gtsam.Values], gtsam.Values],
                    start: gtsam.Values, landmarks: Mapping[int, Landmark] | None = None,
                    kept_as: str | None = DIRECTION) -> tuple[dict, gtsam.Values]:

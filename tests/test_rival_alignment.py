@@ -3,7 +3,7 @@ the room. East and west wall are all that place the walk along x, and each expla
 well as the other: which one is off is a coin toss. The offline estimate keeps one consensus,
 and its covariance and the deviation report cover the other too (`OfflineEstimator._rival`,
 `bimgraph.deviations.estimate.RivalAlignment`); online, the extrinsic's covariance
-(`OnlineJudgement._rival`)."""
+(`OnlineJudgement._challenge`)."""
 
 import numpy as np
 import pytest
@@ -16,13 +16,19 @@ from bimgraph.backend.synthetic import make_scene
 from bimgraph.config import BackendConfig, DeviationConfig
 from bimgraph.deviations.assess import assess
 from bimgraph.deviations.estimate import Deviation, about_estimate, mixed
-from bimgraph.evaluation.metrics import extrinsic_nees
+from bimgraph.evaluation.metrics import extrinsic_error, extrinsic_nees
 from bimgraph.geometry import inverse
 
 
-def one_room_world():
-    scene = make_scene(120, rooms=(1, 1), seed=0, drift_rot_deg=0.01, drift_trans_m=0.001)
+def one_room_world(seed: int = 0):
+    scene = make_scene(120, rooms=(1, 1), seed=seed, drift_rot_deg=0.01, drift_trans_m=0.001)
     return scene, moved_plan(scene.plane_map, {"r00E": 0.06})
+
+
+def online_last(seed: int):
+    scene, plan = one_room_world(seed)
+    backend = Backend(plan, BackendConfig(), scene.initial)
+    return scene, backend, [backend.process(kf) for kf in scene.keyframes][-1]
 
 
 @pytest.fixture(scope="module")
@@ -51,11 +57,16 @@ def test_the_extrinsic_covariance_covers_both(one_room):
 def test_online_the_extrinsic_covariance_covers_both():
     """The online judgement keeps the east wall's consensus too (the extrinsic 6.1 cm off):
     alone, its covariance put that at NEES 27."""
-    scene, plan = one_room_world()
-    backend = Backend(plan, BackendConfig(), scene.initial)
-    last = [backend.process(kf) for kf in scene.keyframes][-1]
+    scene, backend, last = online_last(0)
     assert backend.judge.alignment.verdicts[next(m for m in backend.judge.alignment.verdicts if m[1] == "r00W")] != "kept"
     assert extrinsic_nees(last.T_B_S, last.cov_T_B_S, scene.T_B_S) < chi2.ppf(0.95, 3)
+
+
+def test_online_the_likelier_consensus_is_adopted():
+    """On this seed the judgement's own consensus follows the east wall (the extrinsic 6.2 cm
+    off); its complement, the west wall's, costs less, and is taken."""
+    scene, _, last = online_last(2)
+    assert extrinsic_error(last.T_B_S, scene.T_B_S)[1] < 1.0
 
 
 def test_no_wall_is_reported_off_plan_on_a_coin_toss(one_room):

@@ -145,13 +145,14 @@ class RobustAlignment:
             r2 = self._squared_residuals(matches, values, reduced.landmarks)
         return values
 
-    def adopt(self, matches: list[tuple[int, str]], reduced: Reduced) -> gtsam.Values:
-        """Judge `matches` where `reduced` was taken (a consensus found elsewhere: the offline
-        estimator's challenge), then tighten the tolerance and test each kept factor as
-        `decide` does after choosing. Returns the estimate under the verdicts, in the reduced
-        graph's variables."""
+    def adopt(self, matches: list[tuple[int, str]], reduced: Reduced, start: gtsam.Values | None = None) -> gtsam.Values:
+        """Judge `matches` at `start` (default where `reduced` was taken: a consensus found
+        elsewhere, as the offline estimator's challenge finds one), then tighten the tolerance
+        and test each kept factor as `decide` does after choosing. Returns the estimate under
+        the verdicts, in the reduced graph's variables."""
         solve = BatchSolver(self.cfg.gnc_iterations, self.cfg.relative_error_tol)
-        _, self.tolerance, self.verdicts, values, graph = self._tightened(matches, reduced, reduced.point, solve)
+        start = reduced.point if start is None else start
+        _, self.tolerance, self.verdicts, values, graph = self._tightened(matches, reduced, start, solve)
         return self._studentize(reduced, values, graph, solve)
 
     def verdicts_at(self, matches: list[tuple[int, str]], values: gtsam.Values,

@@ -8,15 +8,19 @@ and its covariance and the deviation report cover the other too (`OfflineEstimat
 import numpy as np
 import pytest
 from scipy.stats import chi2
+from synthetic_sequence import write_sequence
 from test_deviations_backend import moved_plan
 
 from bimgraph.backend.offline import OfflineEstimator
 from bimgraph.backend.online import Backend
+from bimgraph.backend.pipeline import run as run_pipeline
+from bimgraph.bim.planemap import save_plane_map
 from bimgraph.backend.synthetic import make_scene
 from bimgraph.config import BackendConfig, DeviationConfig
 from bimgraph.deviations.assess import assess
 from bimgraph.deviations.estimate import Deviation, about_estimate, mixed
 from bimgraph.evaluation.metrics import extrinsic_error, extrinsic_nees
+from bimgraph.evaluation.runs import run_summary
 from bimgraph.geometry import inverse
 
 
@@ -81,6 +85,18 @@ def test_no_wall_is_reported_off_plan_on_a_coin_toss(one_room):
     for face in report.faces:
         if face.face_id in ("r00N", "r00S"):
             assert face.deviation.offset_sigma_m == pytest.approx(sigma[face.face_id], rel=0.05)
+
+
+def test_the_run_names_the_contested_walls(tmp_path):
+    """`bimgraph run`'s printout: which walls the two consensuses judge otherwise, and how likely
+    the one turned down is (the same room with the simulator-like front-end of the sequence
+    tests; on this seed 44 %)."""
+    scene = write_sequence(tmp_path / "seq", 120, rooms=(1, 1), seed=2)
+    save_plane_map(moved_plan(scene.plane_map, {"r00E": 0.06}), tmp_path / "seq" / "planes.json")
+    run_pipeline(tmp_path / "seq", tmp_path / "out", mode="offline")
+    contested = [text for label, text in run_summary(tmp_path / "out") if label == "contested"]
+    assert len(contested) == 2 and "(r00E)" in contested[0] + contested[1] and "(r00W)" in contested[0] + contested[1]
+    assert all("% likely" in text for text in contested)
 
 
 def test_about_estimate_is_the_mixtures_second_moment():

@@ -345,7 +345,7 @@ class OfflineEstimator:
         rival = solve(graph, values)
         without_bim = self._graph(keyframes, observations, values, lambda lm: None)
         probability = float(expit(-self.judge.margin(without_bim, matches, rival, values)))
-        self.challenge["rival_probability"] = round(probability, 4)
+        self.challenge["rival_probability"] = float(f"{probability:.3g}")
         if probability < _NEGLIGIBLE:
             return None
         marginals = JointMarginals(graph, rival, bim_keys(self.landmarks.current()))

@@ -87,13 +87,15 @@ def test_no_wall_is_reported_off_plan_on_a_coin_toss(one_room):
             assert face.deviation.offset_sigma_m == pytest.approx(sigma[face.face_id], rel=0.05)
 
 
-def test_the_run_names_the_contested_walls(tmp_path):
+@pytest.mark.parametrize("mode", ["offline", "online"])
+def test_the_run_names_the_contested_walls(tmp_path, mode):
     """`bimgraph run`'s printout: which walls the two consensuses judge otherwise, and how likely
     the one turned down is (the same room with the simulator-like front-end of the sequence
-    tests; on this seed 44 %)."""
+    tests; on this seed 44 %). Online, those of the deviation step's rounds, whose report the
+    printout summarises."""
     scene = write_sequence(tmp_path / "seq", 120, rooms=(1, 1), seed=2)
     save_plane_map(moved_plan(scene.plane_map, {"r00E": 0.06}), tmp_path / "seq" / "planes.json")
-    run_pipeline(tmp_path / "seq", tmp_path / "out", mode="offline")
+    run_pipeline(tmp_path / "seq", tmp_path / "out", mode=mode)
     contested = [text for label, text in run_summary(tmp_path / "out") if label == "contested"]
     assert len(contested) == 2 and "(r00E)" in contested[0] + contested[1] and "(r00W)" in contested[0] + contested[1]
     assert all("% likely" in text for text in contested)

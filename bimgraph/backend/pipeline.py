@@ -20,6 +20,7 @@ from bimgraph.backend.results import (ASSOCIATIONS, EXTRINSIC, LANDMARKS, METRIC
                                       TRAJECTORY_SLAM, OnlineWriter, load_summary, write_results, write_summary)
 from bimgraph.bim.planemap import PlaneMap, load_plane_map
 from bimgraph.config import Config
+from bimgraph.deviations.estimate import RivalAlignment
 from bimgraph.deviations.graph import observed_planes_isam2
 from bimgraph.deviations.outputs import DEVIATION_FILES, write_deviation_outputs
 from bimgraph.errors import ConfigError, InputError
@@ -213,8 +214,7 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
         # as online: every other output first, `finished` once the report is written too
         write_results(out_dir, results, named, finished=False)
         report_start = time.perf_counter()
-        _write_report(out_dir, plane_map, results.observed_planes, results.T_B_S, results.T_B_C, meta.camera, cfg,
-                      results.rival_alignment)
+        _write_report(out_dir, plane_map, ReportBasis.of(results), meta.camera, cfg)
         results.timings.update(deviation_report_s=time.perf_counter() - report_start, total_s=time.perf_counter() - start)
         write_summary(out_dir, results, named)
         return results
@@ -241,30 +241,47 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
     if stage is not None:  # (about as long as offline rounds: seconds to a minute)
         stage("measuring the walls")
     report_start = time.perf_counter()
-    planes, T_B_S, T_B_C, rival = _online_deviations(backend, sequence.keyframes, plane_map, cfg, initial, truth, writer.T_B_C)
-    _write_report(out_dir, plane_map, planes, T_B_S, T_B_C, meta.camera, cfg, rival)
-    writer.finish({"deviation_report_s": time.perf_counter() - report_start, "total_s": time.perf_counter() - start})
+    basis = _online_deviations(backend, sequence.keyframes, plane_map, cfg, initial, truth, writer.T_B_C)
+    _write_report(out_dir, plane_map, basis, meta.camera, cfg)
+    writer.finish({"deviation_report_s": time.perf_counter() - report_start, "total_s": time.perf_counter() - start},
+                  basis.challenge)
     return None
 
 
-def _write_report(out_dir: Path, plane_map: PlaneMap, planes, T_B_S, T_B_C, camera, cfg: Config, rival) -> None:
-    """The deviation report, whole or not at all (`rival`: the robust alignment's runner-up, or None)."""
+@dataclass(frozen=True)
+class ReportBasis:
+    """What a deviation report is measured from: the landmarks (as `ObservedPlane`s), `T_B_S`,
+    `T_B_C`, and the robust alignment's runner-up and challenge there (if it judged)."""
+
+    planes: list
+    T_B_S: np.ndarray
+    T_B_C: list[np.ndarray]
+    rival: RivalAlignment | None = None
+    challenge: dict | None = None
+
+    @classmethod
+    def of(cls, results: Results) -> ReportBasis:
+        return cls(results.observed_planes, results.T_B_S, results.T_B_C, results.rival_alignment, results.alignment_challenge)
+
+
+def _write_report(out_dir: Path, plane_map: PlaneMap, basis: ReportBasis, camera, cfg: Config) -> None:
+    """The deviation report, whole or not at all."""
     try:
-        write_deviation_outputs(out_dir, plane_map, planes, T_B_S, T_B_C, camera, cfg.deviations, rival=rival)
+        write_deviation_outputs(out_dir, plane_map, basis.planes, basis.T_B_S, basis.T_B_C, camera, cfg.deviations,
+                                rival=basis.rival)
     except BaseException:
         _remove(out_dir, DEVIATION_FILES)  # (a report written in part is no report)
         raise
 
 
 def _online_deviations(backend: Backend, keyframes: list[Keyframe], plane_map: PlaneMap, cfg: Config, initial: Alignment,
-                       truth, T_B_C_causal: list[np.ndarray]):
-    """What the deviation report of an online run is measured from: the landmarks (as
-    `ObservedPlane`s), `T_B_S`, `T_B_C` and the robust alignment's runner-up. With
+                       truth, T_B_C_causal: list[np.ndarray]) -> ReportBasis:
+    """What the deviation report of an online run is measured from. With
     `deviations.online_refine`, where the offline rounds take the backend's graph (they change
     its landmarks); else at its own solution."""
     if cfg.deviations.online_refine:
-        refined = OfflineEstimator(plane_map, cfg.backend, initial, oracle=truth, causal=backend, tilt=backend.tilt).refine(keyframes)
-        return refined.observed_planes, refined.T_B_S, refined.T_B_C, refined.rival_alignment
+        return ReportBasis.of(OfflineEstimator(plane_map, cfg.backend, initial, oracle=truth, causal=backend,
+                                               tilt=backend.tilt).refine(keyframes))
     planes, T_S_B = observed_planes_isam2(backend.graph, backend.landmarks.current(),
                                           BatchSolver(cfg.backend.offline.max_iterations, cfg.backend.offline.relative_error_tol))
-    return planes, inverse(T_S_B), T_B_C_causal, None
+    return ReportBasis(planes, inverse(T_S_B), T_B_C_causal)

@@ -293,12 +293,14 @@ class OnlineWriter:
                                        depth_tilt_sigma_per_m=backend.tilt.sigma_per_m if backend.tilt is not None else None)
         write_json(self.out / SUMMARY, self._summary)
 
-    def finish(self, timings: dict) -> None:
-        """Mark the run, as its last snapshot wrote it, finished, with these timings added."""
+    def finish(self, timings: dict, alignment_challenge: dict | None = None) -> None:
+        """Mark the run, as its last snapshot wrote it, finished, with these timings added, and
+        the deviation step's robust alignment challenge, if it judged."""
         if self._summary is None:
             return
+        challenge = {} if alignment_challenge is None else {"alignment_challenge": alignment_challenge}
         self._summary = {**self._summary, "finished": True,
-                         "timings_s": {**self._summary["timings_s"], **_seconds(timings)}}
+                         "timings_s": {**self._summary["timings_s"], **_seconds(timings)}, **challenge}
         write_json(self.out / SUMMARY, self._summary)
 
     def _covariance(self, backend) -> np.ndarray:

@@ -152,10 +152,11 @@ class OfflineEstimator:
         seven walls across x moved 7-10 cm the same way), two consensuses explain the data
         nearly alike, and which one the judgement, on the marginal at the rounds' estimate,
         picks depends on where the causal pass left it (an initial alignment 7 cm closer to
-        the truth put seed 2 10 cm off). So once the rounds settle, the walls it did not keep
-        whole are kept whole and those it kept held by their direction alone, the whole graph
-        solved from there and judged again; both estimates re-solved under their verdicts
-        without robust kernel, the one of lower truncated-least-squares cost stays. Returns the
+        the truth put seed 2 10 cm off). So once the rounds settle, its complement is found
+        on the whole graph (`RobustAlignment.complement`: the walls it did not keep whole kept
+        whole, the others taken as unsure, the graph judged again from there); both estimates
+        re-solved under their verdicts without robust kernel, the one of lower
+        truncated-least-squares cost stays. Returns the
         complement's estimate if it won, else None (also when every wall was kept). Records in
         `challenge` the margin between the two costs (half chi-square units: a few mean the
         data hardly choose) and the faces whose verdicts differ."""
@@ -167,9 +168,9 @@ class OfflineEstimator:
         def solve_under(verdicts: dict, start: gtsam.Values) -> gtsam.Values:
             return solve(self._graph(keyframes, observations, start, self.judge.factors(verdicts)), start)
 
-        rival_verdicts, rival = self.judge.complement(matches, solve_under, values)
-        ours = solve_under(self.judge.verdicts, values)
         without_bim = self._graph(keyframes, observations, values, lambda lm: None)
+        rival_verdicts, rival = self.judge.complement(matches, solve_under, without_bim, values)
+        ours = solve_under(self.judge.verdicts, values)
         margin = self.judge.margin(without_bim, matches, rival, ours)
         self.challenge = {"complement_taken": bool(margin < 0), "margin": round(abs(float(margin)), 3),
                           "contested_faces": sorted({face for (j, face) in matches

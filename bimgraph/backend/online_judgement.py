@@ -69,24 +69,20 @@ class OnlineJudgement:
         """The judgement's consensus against its complement (`RobustAlignment.complement`, on
         the reduced graph; `values` its estimate under the verdicts), as offline
         (`OfflineEstimator._challenge`): the likelier of the two is adopted (offices 1-17 and
-        sites 1-12: office 1 1.85 -> 0.80 cm, site 4 5.41 -> 5.11, three more walks within 0.02
+        sites 1-12: office 1 1.85 -> 0.80 cm, site 4 5.41 -> 5.11, three more walks within 0.03
         cm; held out, no walk changed). Returns the share of the extrinsic's covariance owed to
         the other one: `p d d^T`, `d` its `T_B_S` in the tangent of the estimate's, `p` its
         probability from the two truncated-least-squares costs (`OfflineEstimator._rival`).
         Two parallel walls seen alone, one of them built off plan, are a coin toss (a 2Storey
-        depth walk: the wrong one kept, the extrinsic 5.9 cm off at NEES 31 -> 2.0)."""
+        depth walk kept the wrong one, the extrinsic 5.9 cm off at NEES 31; now 0.7 cm, NEES 0.2)."""
         none = np.zeros((6, 6))
         if all(verdict == KEPT for verdict in self.alignment.verdicts.values()):
             return none
-        # (the walls it kept under the robust kernel, not held by their direction as offline: on
-        # the reduced graph a direction leaves the walls' axis to the extrinsic's prior, and the
-        # 2Storey walk's sound walls across the contested ones ended 5 cm off, judged out)
-        factors = self.alignment.factors
+        factors, without_bim = self.alignment.factors, judged.graph(lambda lm: None)
         verdicts, rival = self.alignment.complement(
-            matches, lambda v, start: self._solve(judged.graph(factors(v)), start), values, judged.landmarks, kept_as=None)
+            matches, lambda v, start: self._solve(judged.graph(factors(v)), start), without_bim, values, judged.landmarks)
         if verdicts == self.alignment.verdicts:
             return none
-        without_bim = judged.graph(lambda lm: None)
         margin = self.alignment.margin(without_bim, matches, rival, values, judged.landmarks)
         if margin < 0:  # the rival is the likelier: it is adopted, and the judgement's own is the rival
             rival, values = values, self.alignment.adopt(matches, judged, rival)

@@ -114,12 +114,10 @@ class RobustAlignment:
                 candidates.append(self._tightened(matches, reduced, start, solve))
             best.append(min(candidates, key=lambda candidate: candidate[0]))
         # a tighter start's verdicts replace those of the current tolerance only if they explain
-        # the data clearly better (a likelihood-ratio test on the tolerance's two parameters): on a
-        # world built as planned, a sound wall went out on a near tie (0.14 units), which let the
-        # rest claim a tighter tolerance
-        margin = 0.5 * chi2.ppf(cfg.gnc_probability, 2)
+        # the data clearly better (`_clearly_better`): on a world built as planned, a sound wall
+        # went out on a near tie (0.14 units), which let the rest claim a tighter tolerance
         tighter = min(best[1:], key=lambda candidate: candidate[0], default=None)
-        chosen = tighter if tighter is not None and tighter[0] < best[0][0] - margin else best[0]
+        chosen = tighter if tighter is not None and self._clearly_better(tighter[0], best[0][0]) else best[0]
         _, self.tolerance, self.verdicts, values, graph = chosen
         return self._studentize(reduced, values, graph, solve)
 
@@ -190,22 +188,27 @@ class RobustAlignment:
         Unsure is first held by their direction alone, which lets a wall built off plan show
         it in its offset; then under the robust kernel, which keeps the axes that only those
         walls place, and which replaces the first where it explains the data clearly better
-        (`tls_cost` on `without_bim`, by `decide`'s likelihood-ratio margin). By their direction
+        (`tls_cost` on `without_bim`, `_clearly_better`). By their direction
         alone, the walls across two disputed ones on a 2Storey walk slid to the extrinsic's
         prior and were judged out (cost 11.2 above the robust kernel's start); under the robust
         kernel, the moved wall of tests/test_deviations_backend.py, parallel to plan, ended out
         instead of direction-only (2.3 below the direction's start: the truncated cost cannot
         tell the two apart)."""
-        margin = 0.5 * chi2.ppf(self.cfg.gnc_probability, 2)
         best = None
         for unsure in (DIRECTION, None):
             solved = solve_under({m: unsure if verdict == KEPT else KEPT for m, verdict in self.verdicts.items()}, start)
             verdicts = self.verdicts_at(matches, solved, landmarks)
             solved = solve_under(verdicts, solved)
             cost = self.tls_cost(without_bim, matches, solved, landmarks)
-            if best is None or cost < best[0] - margin:
+            if best is None or self._clearly_better(cost, best[0]):
                 best = (cost, verdicts, solved)
         return best[1], best[2]
+
+    def _clearly_better(self, cost: float, than: float) -> bool:
+        """Whether a candidate of `cost` explains the data clearly better than one of `than`
+        (negative log-likelihoods): by a likelihood-ratio test on two parameters at
+        `gnc_probability`, which `decide` and `complement` replace one candidate by another with."""
+        return cost < than - 0.5 * chi2.ppf(self.cfg.gnc_probability, 2)
 
     def factors(self, verdicts: dict[tuple[int, str], str | None]) -> Callable[[Landmark], gtsam.NonlinearFactor | None]:
         """Each landmark's plane-to-BIM factor under `verdicts`, Gaussian, or kept under the

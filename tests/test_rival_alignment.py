@@ -2,8 +2,9 @@
 the room. East and west wall are all that place the walk along x, and each explains the data as
 well as the other: which one is off is a coin toss. The offline estimate keeps one consensus,
 and its covariance and the deviation report cover the other too (`OfflineEstimator._rival`,
-`bimgraph.deviations.estimate.RivalAlignment`); online, the extrinsic's covariance
-(`OnlineJudgement._challenge`)."""
+`bimgraph.deviations.estimate.RivalAlignment`), and the report says what the data do tell:
+one of the two walls is off by about 6 cm (`bimgraph.deviations.assess.contest`); online, the
+extrinsic's covariance (`OnlineJudgement._challenge`)."""
 
 import numpy as np
 import pytest
@@ -20,8 +21,10 @@ from bimgraph.backend.robust_alignment import RobustAlignment
 from bimgraph.bim.planemap import save_plane_map
 from bimgraph.backend.synthetic import make_scene
 from bimgraph.config import BackendConfig, DeviationConfig
-from bimgraph.deviations.assess import assess
-from bimgraph.deviations.estimate import Deviation, about_estimate, mixed
+from bimgraph.deviations.assess import assess, contest
+from bimgraph.deviations.bcf import read_bcf_topics, write_bcf
+from bimgraph.deviations.estimate import Deviation, FaceReport, about_estimate, mixed
+from bimgraph.deviations.report import CSV_FILE, JSON_FILE, load_deviations, read_csv_rows, write_deviations
 from bimgraph.evaluation.metrics import extrinsic_error, extrinsic_nees
 from bimgraph.evaluation.runs import run_summary
 from bimgraph.geometry import inverse
@@ -103,6 +106,59 @@ def test_no_wall_is_reported_off_plan_on_a_coin_toss(one_room):
             assert face.deviation.offset_sigma_m == pytest.approx(sigma[face.face_id], rel=0.05)
 
 
+def test_the_report_says_one_of_the_two_walls_is_off(one_room):
+    """What the data do say: one of east and west wall is built about 6 cm into the room. The
+    report's contest lists both explanations, each with its wall's offset under it and its
+    probability."""
+    _, plan, _, res = one_room
+    report = assess(plan, res.observed_planes, inverse(res.T_B_S), DeviationConfig(), rival=res.rival_alignment)
+    assert len(report.contested) == 2
+    assert sum(e.probability for e in report.contested) == pytest.approx(1.0)
+    assert report.contested[0].probability >= report.contested[1].probability
+    assert sorted(f.face_id for e in report.contested for f in e.deviating) == ["r00E", "r00W"]
+    for explanation in report.contested:
+        (face,) = explanation.deviating
+        dev = face.deviation
+        assert face.status == "deviating" and abs(dev.offset_m - 0.06) < 3 * dev.offset_sigma_m
+        assert dev.offset_sigma_m < 0.02  # measured under its own alignment alone
+    # a rival judged unlikely enough is no contest
+    assert not assess(plan, res.observed_planes, inverse(res.T_B_S), DeviationConfig(contest_min_probability=0.99),
+                      rival=res.rival_alignment).contested
+
+
+def _face(face_id: str, n_keyframes: int = 10) -> FaceReport:
+    return FaceReport(face_id, "g" + face_id, "", "", "not_enough_evidence", n_keyframes)
+
+
+@pytest.mark.parametrize("own, under_rival, contested", [
+    (Deviation(0.06, 0.01, 0.1, 0.1), Deviation(0.0, 0.01, 0.1, 0.1), True),   # deviating, or within tolerance
+    (Deviation(0.06, 0.01, 0.1, 0.1), Deviation(0.0, 0.2, 0.1, 0.1), True),    # deviating, or unknown
+    (Deviation(0.06, 0.01, 0.1, 0.1), Deviation(0.09, 0.01, 0.1, 0.1), False),  # deviating either way
+    (Deviation(0.0, 0.01, 0.1, 0.1), Deviation(0.01, 0.2, 0.1, 0.1), False),   # never deviating
+])
+def test_a_face_is_contested_where_it_deviates_under_one_alignment_only(own, under_rival, contested):
+    explanations = contest([(_face("a"), own, under_rival), (_face("b"), own, None)], 0.3, DeviationConfig())
+    assert bool(explanations) == contested
+    if contested:
+        assert [e.probability for e in explanations] == pytest.approx([0.7, 0.3])
+        assert [[f.face_id for f in e.deviating] for e in explanations] == [["a"], []]
+        assert explanations[0].deviating[0].deviation == own
+
+
+def test_the_contest_is_written_and_becomes_a_bcf_topic(one_room, tmp_path):
+    _, plan, _, res = one_room
+    report = assess(plan, res.observed_planes, inverse(res.T_B_S), DeviationConfig(), rival=res.rival_alignment)
+    data = write_deviations(report, tmp_path)
+    assert load_deviations(tmp_path / JSON_FILE) == data and len(data.contested) == 2
+    rows = [row for row in read_csv_rows(tmp_path / CSV_FILE) if row["status"] == "contested"]
+    assert sorted(row["face_id"] for row in rows) == ["r00E", "r00W"]
+    assert sum(float(row["probability"]) for row in rows) == pytest.approx(1.0)
+    assert write_bcf(data, plan, tmp_path / "d.bcf", DeviationConfig()) == 1  # no face deviates for sure
+    ((title, guids),) = read_bcf_topics(tmp_path / "d.bcf")
+    walls = {face.id: face.wall_guid for face in plan.faces}
+    assert sorted(guids) == sorted([walls["r00E"], walls["r00W"]]) and "off plan" in title
+
+
 @pytest.mark.parametrize("mode", ["offline", "online"])
 def test_the_run_names_the_contested_walls(tmp_path, mode):
     """`bimgraph run`'s printout: which walls the two consensuses judge otherwise, and how likely
@@ -114,7 +170,8 @@ def test_the_run_names_the_contested_walls(tmp_path, mode):
     run_pipeline(tmp_path / "seq", tmp_path / "out", mode=mode)
     contested = [text for label, text in run_summary(tmp_path / "out") if label == "contested"]
     assert len(contested) == 2 and "(r00E)" in contested[0] + contested[1] and "(r00W)" in contested[0] + contested[1]
-    assert all("% likely" in text for text in contested)
+    assert contested[0].startswith("either") and contested[1].startswith("or")
+    assert all("% likely" in text and "offset +" in text for text in contested)
 
 
 def test_about_estimate_is_the_mixtures_second_moment():

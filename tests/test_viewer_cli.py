@@ -18,7 +18,7 @@ os.environ.setdefault("RERUN_ANALYTICS", "0")
 
 from bimgraph.cli import app  # noqa: E402
 from bimgraph.config import ViewerConfig  # noqa: E402
-from bimgraph.deviations.report import JSON_FILE, DeviationsFile, FaceRecord  # noqa: E402
+from bimgraph.deviations.report import JSON_FILE, DeviationsFile, ExplanationRecord, FaceRecord  # noqa: E402
 from bimgraph.files import write_json  # noqa: E402
 from bimgraph.viewer import blueprint as bp  # noqa: E402
 from bimgraph.viewer.rerun_viewer import face_entity  # noqa: E402
@@ -91,7 +91,11 @@ def test_view_replays_the_outputs(online_run, seq_dir):
     faces = [f.id for f in scene.plane_map.faces]
     write_json(online_run / JSON_FILE, DeviationsFile(tolerance_m=0.02, tilt_tolerance_deg=0.5, k_sigma=2.0, unplanned=[], faces=[
         FaceRecord(face_id=faces[1], wall_guid="w", status="deviating"),
-        FaceRecord(face_id=faces[2], wall_guid="w", status="within_tolerance")]).model_dump(mode="json"))
+        FaceRecord(face_id=faces[2], wall_guid="w", status="within_tolerance"),
+        FaceRecord(face_id=faces[3], wall_guid="w", status="not_enough_evidence")], contested=[
+        ExplanationRecord(probability=0.6, deviating=[FaceRecord(face_id=faces[3], wall_guid="w", status="deviating")]),
+        ExplanationRecord(probability=0.4, deviating=[FaceRecord(face_id=faces[1], wall_guid="w", status="deviating")])],
+    ).model_dump(mode="json"))
     result = CliRunner().invoke(app, ["view", str(online_run), "--sequence", str(root), "--rrd", str(online_run / "view.rrd")])
     assert result.exit_code == 0, result.output
     run, view = online_run / "run.rrd", online_run / "view.rrd"
@@ -106,6 +110,8 @@ def test_view_replays_the_outputs(online_run, seq_dir):
     colours = ViewerConfig()
     assert albedo(view, "/" + face_entity(faces[1]))[-1] == rgba_u32(colours.colour_deviating)
     assert albedo(view, "/" + face_entity(faces[2]))[-1] != rgba_u32(colours.colour_deviating)
+    # a face of a contest, deviating or not by which alignment holds; a deviating face stays so
+    assert albedo(view, "/" + face_entity(faces[3]))[-1] == rgba_u32(colours.colour_contested)
     (online_run / JSON_FILE).unlink()
 
 

@@ -32,6 +32,7 @@ class DeviationConfig(Section):
     visibility_min_area_m2: float = Field(0.5, ge=0, description="...and a face is in view if at least this much of it is in view and not occluded by other faces")
     min_expected_keyframes: int = Field(5, ge=1, description="a never-observed face in view in at least this many keyframes is possibly not built")
     online_refine: bool = Field(True, description="after an online run, measure the walls where the offline rounds take its graph (the drift and odometry noise estimated, the robust alignment, re-association), not at its own batch solution: the online graph keeps the given odometry noise, looser than the front-end's (offline estimates it at 0.2-0.4 of it on the simulated walks), so walls built off plan bend its trajectory and sound faces read centimetres off at several sigma (office 2: 8 of 31 faces beyond 3 sigma, none refined). Costs about the offline rounds: 6-12 s on a 600-keyframe walk")
+    contest_min_probability: float = Field(0.01, ge=0, le=1, description="where the robust alignment's runner-up consensus is at least this likely and judges some face otherwise (deviating under one alignment, not under the other), the report lists both explanations, e.g. one of two parallel walls 5 cm off, which one the data cannot tell, with a BCF topic naming the walls")
     bcf_author: str = Field("bimgraph", description="author of the BCF topics")
     bcf_view_distance_m: float = Field(3.0, gt=0, description="the BCF viewpoint looks at the face's centre from this far along its normal")
 
@@ -68,6 +69,7 @@ class ViewerConfig(Section):
     colour_unobserved: Rgba = Field([170, 170, 170, 90], description="BIM face never observed")
     colour_observed: Rgba = Field([90, 150, 230, 140], description="BIM face observed but not associated")
     colour_associated: Rgba = Field([60, 190, 90, 170], description="BIM face associated with a landmark")
+    colour_contested: Rgba = Field([250, 160, 0, 200], description="BIM face of a contest: one of its walls deviates, which one the data cannot tell (deviations.json's contested)")
     colour_deviating: Rgba = Field([230, 60, 50, 200], description="BIM face whose as-built position deviates beyond tolerance")
     colour_raw: Rgba = Field([240, 140, 30, 255], description="raw front-end trajectory mapped by the initial alignment")
     colour_corrected: Rgba = Field([30, 110, 240, 255], description="corrected trajectory, as estimated at each keyframe")
@@ -78,5 +80,5 @@ class ViewerConfig(Section):
     colour_association: Rgba = Field([60, 190, 90, 255], description="line from an associated plane to its BIM face's centre")
 
     def colour(self, state: str) -> Rgba:
-        """The colour of a face state: unobserved, observed, associated or deviating."""
+        """The colour of a face state: unobserved, observed, associated, contested or deviating."""
         return getattr(self, f"colour_{state}")

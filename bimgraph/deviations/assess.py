@@ -19,7 +19,9 @@ import shapely
 from bimgraph.bim.planemap import BimFace, PlaneMap
 from bimgraph.config import DeviationConfig
 from bimgraph.deviations.estimate import (
+    Deviation,
     DeviationReport,
+    Explanation,
     FaceReport,
     ObservedPlane,
     RivalAlignment,
@@ -106,22 +108,51 @@ def _is_vertical(plane_B: np.ndarray, cfg: DeviationConfig) -> bool:
     return abs(90.0 - normal_angle_deg(plane_B[:3], np.array([0.0, 0.0, 1.0]))) <= cfg.vertical_tolerance_deg
 
 
+def contest(faces: Sequence[tuple[FaceReport, Deviation, Deviation | None]], probability: float,
+            cfg: DeviationConfig) -> list[Explanation]:
+    """The two ways the data explain the faces the two alignments judge otherwise, as
+    `Explanation`s, the likelier first: `faces` are the measured faces with their deviations
+    under the estimate's alignment and under the rival's (None where the rival has none), which
+    has `probability`. A face is contested where it deviates under one and not under the
+    other; none contested, none listed. (Their report's status, over both, is mostly not enough
+    evidence: what the data do say, "one of these walls is off by about this much", is here.)"""
+    under: tuple[list[FaceReport], list[FaceReport]] = ([], [])
+    for entry, own, under_rival in faces:
+        if under_rival is None:
+            continue
+        statuses = [classify(dev, entry.n_keyframes, cfg) for dev in (own, under_rival)]
+        if statuses[0] == statuses[1] or "deviating" not in statuses:
+            continue
+        for side, status, dev in zip(under, statuses, (own, under_rival)):
+            if status == "deviating":
+                side.append(replace(entry, status="deviating", deviation=dev))
+    if not any(under):
+        return []
+    explanations = [Explanation(1.0 - probability, tuple(under[0])), Explanation(probability, tuple(under[1]))]
+    return sorted(explanations, key=lambda e: -e.probability)
+
+
 def assess(plane_map: PlaneMap, planes: Sequence[ObservedPlane], T_S_B: np.ndarray, cfg: DeviationConfig,
            expected_views: Mapping[str, int] | None = None, rival: RivalAlignment | None = None) -> DeviationReport:
     """The deviation report. `planes` are all the graph's landmarks; `expected_views` counts,
     per face id, the keyframes at which the face should have been in view (see
     `visibility.expected_view_counts`); without it no face is listed as possibly not built.
-    With the robust alignment's `rival`, each face's sigmas cover both alignments (`mixed`)."""
+    With the robust alignment's `rival`, each face's sigmas cover both alignments (`mixed`), and
+    the faces they judge otherwise are listed by the report's `contested` (`contest`)."""
     report = DeviationReport(cfg.tolerance_m, cfg.tilt_tolerance_deg, cfg.k_sigma)
     faces = {f.id: f for f in plane_map.faces}
     expected = expected_views or {}
 
-    measured: dict[str, tuple[FaceReport, tuple]] = {}
+    # face id -> (its report, the rank of its evidence, its deviations under the estimate's
+    # alignment and under the rival's, unmixed)
+    measured: dict[str, tuple[FaceReport, tuple, tuple[Deviation, Deviation | None]]] = {}
 
     def measure(face: BimFace, plane: ObservedPlane, how: str):
-        dev = face_deviation(face, plane, T_S_B)
+        dev = own = face_deviation(face, plane, T_S_B)
+        under_rival = None
         if rival is not None and plane.landmark in rival.planes:
-            dev = mixed(dev, face_deviation(face, rival.planes[plane.landmark], rival.T_S_B), rival.probability)
+            under_rival = face_deviation(face, rival.planes[plane.landmark], rival.T_S_B)
+            dev = mixed(own, under_rival, rival.probability)
         entry = FaceReport(face.id, face.wall_guid, face.wall_name, face.storey, classify(dev, plane.n_keyframes, cfg),
                            plane.n_keyframes, dev, plane.landmark, how, expected.get(face.id, 0))
         # Two landmarks on one face (two visits, or a glimpse beside the wall's landmark): the
@@ -129,7 +160,7 @@ def assess(plane_map: PlaneMap, planes: Sequence[ObservedPlane], T_S_B: np.ndarr
         sigma = dev.offset_sigma_m if dev.measurable and np.isfinite(dev.offset_sigma_m) else np.inf
         rank = (plane.n_keyframes >= cfg.min_keyframes, -sigma)
         if face.id not in measured or rank > measured[face.id][1]:
-            measured[face.id] = (entry, rank)
+            measured[face.id] = (entry, rank, (own, under_rival))
 
     for plane in planes:
         if plane.face_id is not None and plane.face_id in faces:
@@ -141,6 +172,9 @@ def assess(plane_map: PlaneMap, planes: Sequence[ObservedPlane], T_S_B: np.ndarr
         for plane in near:
             measure(faces[face_id], plane, "proximity")
     report.faces = [measured[f.id][0] for f in plane_map.faces if f.id in measured]
+    if rival is not None and rival.probability >= cfg.contest_min_probability:
+        report.contested = contest([(measured[f.id][0], *measured[f.id][2]) for f in plane_map.faces if f.id in measured],
+                                   rival.probability, cfg)
 
     for face in plane_map.faces:
         seen_from = expected.get(face.id, 0)

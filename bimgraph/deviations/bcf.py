@@ -1,6 +1,7 @@
 """The BIM Collaboration Format file: one topic per deviating wall face, naming the wall's IFC
 GlobalId and with a viewpoint from inside the room looking at the face, so that BIM tools
-(BIMcollab, Solibri, BlenderBIM, Revit plug-ins) open the issue on the right wall."""
+(BIMcollab, Solibri, BlenderBIM, Revit plug-ins) open the issue on the right wall; and one
+topic naming the walls of a contest (one of them off plan, which one the data cannot tell)."""
 
 from __future__ import annotations
 
@@ -23,41 +24,61 @@ from bimgraph.geometry import pose_from_tum
 BCF_FILE = "deviations.bcf"
 
 
-def _describe(record, cfg: DeviationConfig) -> str:
+def _built(record) -> str:
     direction = "into the room" if record.offset_m >= 0 else "out of the room"
+    return (f"{abs(record.offset_m) * 100:.1f} +/- {record.offset_sigma_m * 100:.1f} cm {direction} from plan "
+            f"and tilted {record.tilt_deg:.2f} +/- {record.tilt_sigma_deg:.2f} deg")
+
+
+def _describe(record, cfg: DeviationConfig) -> str:
     return (f"Wall face {record.face_id} of {record.wall_name or record.wall_guid} ({record.storey}) is built "
-            f"{abs(record.offset_m) * 100:.1f} +/- {record.offset_sigma_m * 100:.1f} cm {direction} from plan "
-            f"and tilted {record.tilt_deg:.2f} +/- {record.tilt_sigma_deg:.2f} deg; tolerance "
-            f"+/-{cfg.tolerance_m * 100:.1f} cm and {cfg.tilt_tolerance_deg:.2f} deg. "
+            f"{_built(record)}; tolerance +/-{cfg.tolerance_m * 100:.1f} cm and {cfg.tilt_tolerance_deg:.2f} deg. "
             f"Seen in {record.n_keyframes} keyframes.")
+
+
+def _describe_contest(contested) -> str:
+    def one(explanation) -> str:
+        faces = " and ".join(f"face {f.face_id} of {f.wall_name or f.wall_guid} ({f.storey}) is built {_built(f)}"
+                             for f in explanation.deviating) or "none of them is off beyond tolerance"
+        return f"{faces} ({explanation.probability * 100:.0f} % likely)"
+
+    return ("The scan shows that these walls are not all where the plan puts them, but not which one is off. "
+            "Either " + ", or ".join(one(e) for e in contested) + ". Measuring between them on site tells which.")
 
 
 def write_bcf(deviations: DeviationsFile, plane_map: PlaneMap, path: Path, cfg: DeviationConfig,
               project_name: str = "bimgraph as-built deviations") -> int:
-    """Write the BCF 3.0 file; returns the number of topics (deviating faces)."""
+    """Write the BCF 3.0 file; returns the number of topics: one per deviating face, and one
+    for a contest (walls of which one is off plan, which one the data cannot tell)."""
     faces = plane_map.index
     # viewpoints are in the IFC file's world frame, in metres: B's pose in it, if B is not it
     T_W_B = np.eye(4) if plane_map.T_W_B is None else pose_from_tum(plane_map.T_W_B)
     bcf = BcfXml.create_new(project_name)
-    count = 0
-    for record in deviations.faces:
-        if record.status != "deviating":
-            continue
-        face = plane_map.faces[faces[record.face_id]]
-        topic = bcf.add_topic(f"As-built deviation: {record.wall_name or record.face_id}", _describe(record, cfg),
-                              cfg.bcf_author, topic_type="Issue", topic_status="Open")
+
+    def add_topic(title: str, description: str, face_id: str, guids: list[str]) -> None:
+        face = plane_map.faces[faces[face_id]]
+        topic = bcf.add_topic(title, description, cfg.bcf_author, topic_type="Issue", topic_status="Open")
         # Look at the face's centre from inside its room, from half a metre above it.
         offset_B = cfg.bcf_view_distance_m * np.asarray(face.normal) + np.array([0.0, 0.0, 0.5])
         target_W = T_W_B[:3, :3] @ np.asarray(face.centre) + T_W_B[:3, 3]
         camera = build_camera_from_vectors(*camera_vectors_from_target_position(target_W, T_W_B[:3, :3] @ offset_B))
-        info = mdl.VisualizationInfo(guid=str(uuid.uuid4()), components=build_components(face.wall_guid),
+        info = mdl.VisualizationInfo(guid=str(uuid.uuid4()), components=build_components(*guids),
                                      perspective_camera=camera)
         topic.add_visinfo_handler(VisualizationInfoHandler(info))
-        count += 1
+
+    deviating = [record for record in deviations.faces if record.status == "deviating"]
+    for record in deviating:
+        add_topic(f"As-built deviation: {record.wall_name or record.face_id}", _describe(record, cfg),
+                  record.face_id, [record.wall_guid])
+    contested = [f for explanation in deviations.contested for f in explanation.deviating]
+    if contested:
+        names = list(dict.fromkeys(f.wall_name or f.face_id for f in contested))
+        add_topic(f"Which wall is off plan: {' or '.join(names)}", _describe_contest(deviations.contested),
+                  contested[0].face_id, list(dict.fromkeys(f.wall_guid for f in contested)))
     path = Path(path)
     ensure_folder(path.parent)
     bcf.save(path)
-    return count
+    return len(bcf.topics)
 
 
 def read_bcf_topics(path: Path) -> list[tuple[str, list[str]]]:

@@ -136,6 +136,17 @@ class UnplannedPlane:
     n_keyframes: int
 
 
+@dataclass(frozen=True)
+class Explanation:
+    """One of the two alignments the data barely choose between (`RivalAlignment`), with its
+    probability, and the faces built off plan under it, each measured under it alone, of those
+    the two alignments judge otherwise: the faces of a contest ("one of these walls is off,
+    which one the data cannot tell")."""
+
+    probability: float
+    deviating: tuple[FaceReport, ...]
+
+
 @dataclass
 class DeviationReport:
     tolerance_m: float
@@ -143,6 +154,7 @@ class DeviationReport:
     k_sigma: float
     faces: list[FaceReport] = field(default_factory=list)
     unplanned: list[UnplannedPlane] = field(default_factory=list)
+    contested: list[Explanation] = field(default_factory=list)  # none, or two, the likelier first
 
     def by_status(self, status: Status) -> list[FaceReport]:
         return [f for f in self.faces if f.status == status]

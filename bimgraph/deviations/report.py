@@ -1,6 +1,7 @@
 """deviations.json and deviations.csv: the deviation report on disk (schema in docs/formats.md,
 "Deviations"). The JSON is the reference and is validated on load; the CSV holds the same rows
-for spreadsheets, one per face and one per unplanned plane."""
+for spreadsheets, one per face, one per unplanned plane and one per face of each explanation
+of a contest."""
 
 from __future__ import annotations
 
@@ -11,13 +12,13 @@ from typing import Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from bimgraph.deviations.estimate import DeviationReport
+from bimgraph.deviations.estimate import DeviationReport, FaceReport
 from bimgraph.errors import FormatError, InputError
 from bimgraph.files import read_json, write_atomic, write_json
 from bimgraph.validation import parse_model
 
 FORMAT = "bimgraph.deviations"
-VERSION = 1
+VERSION = 2  # 2: `contested` (version 1 files, without it, load as ever)
 JSON_FILE = "deviations.json"
 CSV_FILE = "deviations.csv"
 
@@ -57,15 +58,25 @@ class UnplannedRecord(BaseModel):
     n_keyframes: int = Field(ge=0)
 
 
+class ExplanationRecord(BaseModel):
+    """One of two alignments the data barely choose between: its probability and the faces
+    built off plan under it (status `deviating`, measured under it alone)."""
+
+    model_config = ConfigDict(extra="forbid")
+    probability: float = Field(ge=0, le=1)
+    deviating: list[FaceRecord]
+
+
 class DeviationsFile(BaseModel):
     model_config = ConfigDict(extra="forbid")
     format: Literal["bimgraph.deviations"] = FORMAT
-    version: Literal[1] = VERSION
+    version: Literal[1, 2] = VERSION
     tolerance_m: float = Field(gt=0)
     tilt_tolerance_deg: float = Field(gt=0)
     k_sigma: float = Field(ge=0)
     faces: list[FaceRecord]
     unplanned: list[UnplannedRecord]
+    contested: list[ExplanationRecord] = Field(default_factory=list, max_length=2)
 
     def counts(self) -> dict[str, int]:
         out: dict[str, int] = {}
@@ -75,30 +86,34 @@ class DeviationsFile(BaseModel):
         return out
 
 
+def _face_record(f: FaceReport) -> FaceRecord:
+    dev = f.deviation
+    return FaceRecord(
+        face_id=f.face_id, wall_guid=f.wall_guid, wall_name=f.wall_name, storey=f.storey, status=f.status,
+        offset_m=dev.offset_m if dev else None, offset_sigma_m=dev.offset_sigma_m if dev else None,
+        tilt_deg=dev.tilt_deg if dev else None, tilt_sigma_deg=dev.tilt_sigma_deg if dev else None,
+        n_keyframes=f.n_keyframes, expected_keyframes=f.expected_keyframes, landmark=f.landmark,
+        matched_by=f.matched_by,
+    )
+
+
 def to_file(report: DeviationReport) -> DeviationsFile:
-    faces = []
-    for f in report.faces:
-        dev = f.deviation
-        faces.append(FaceRecord(
-            face_id=f.face_id, wall_guid=f.wall_guid, wall_name=f.wall_name, storey=f.storey, status=f.status,
-            offset_m=dev.offset_m if dev else None, offset_sigma_m=dev.offset_sigma_m if dev else None,
-            tilt_deg=dev.tilt_deg if dev else None, tilt_sigma_deg=dev.tilt_sigma_deg if dev else None,
-            n_keyframes=f.n_keyframes, expected_keyframes=f.expected_keyframes, landmark=f.landmark,
-            matched_by=f.matched_by,
-        ))
+    faces = [_face_record(f) for f in report.faces]
     unplanned = [
         UnplannedRecord(landmark=u.landmark, normal=tuple(map(float, u.plane_B[:3])), offset=float(u.plane_B[3]),
                         centre=None if u.centre_B is None else tuple(map(float, u.centre_B)),
                         area_m2=u.area_m2, n_keyframes=u.n_keyframes)
         for u in report.unplanned
     ]
+    contested = [ExplanationRecord(probability=e.probability, deviating=[_face_record(f) for f in e.deviating])
+                 for e in report.contested]
     return DeviationsFile(tolerance_m=report.tolerance_m, tilt_tolerance_deg=report.tilt_tolerance_deg,
-                          k_sigma=report.k_sigma, faces=faces, unplanned=unplanned)
+                          k_sigma=report.k_sigma, faces=faces, unplanned=unplanned, contested=contested)
 
 
 CSV_COLUMNS = ["status", "face_id", "wall_guid", "wall_name", "storey", "offset_m", "offset_sigma_m", "tilt_deg",
                "tilt_sigma_deg", "n_keyframes", "expected_keyframes", "landmark", "matched_by",
-               "area_m2", "centre_x", "centre_y", "centre_z"]
+               "area_m2", "centre_x", "centre_y", "centre_z", "probability"]
 
 
 def to_csv(data: DeviationsFile) -> str:
@@ -111,6 +126,10 @@ def to_csv(data: DeviationsFile) -> str:
         centre = u.centre or ("", "", "")
         writer.writerow({"status": "unplanned", "landmark": u.landmark, "n_keyframes": u.n_keyframes,
                          "area_m2": u.area_m2, "centre_x": centre[0], "centre_y": centre[1], "centre_z": centre[2]})
+    for explanation in data.contested:
+        for f in explanation.deviating:
+            writer.writerow({**{k: ("" if v is None else v) for k, v in f.model_dump().items()}, "status": "contested",
+                             "probability": explanation.probability})
     return out.getvalue()
 
 

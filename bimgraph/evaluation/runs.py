@@ -143,11 +143,10 @@ def run_summary(out_dir: Path) -> list[tuple[str, str]]:
         rows += [("deviating", f"{f.wall_name or f.wall_guid} ({f.face_id}): offset {100 * f.offset_m:+.1f} ± "
                                f"{100 * f.offset_sigma_m:.1f} cm, tilt {f.tilt_deg:.2f} ± {f.tilt_sigma_deg:.2f} deg")
                  for f in deviations.faces if f.status == "deviating"]
-        # (a rival under 1 % widens a sigma by a tenth of how far it moves the wall, at most)
-        if challenge and (p := challenge.rival_probability) is not None and p >= 0.01:
-            names = {f.face_id: f.wall_name or f.wall_guid for f in deviations.faces}
-            rows += [("contested", f"{names.get(face, face)} ({face}): whether it is on plan, the data barely tell (the "
-                                   f"other consensus {100 * p:.2g} % likely); its sigmas cover both") for face in challenge.contested_faces]
+        for lead, explanation in zip(("either", "or"), deviations.contested):
+            faces = "; ".join(f"{f.wall_name or f.wall_guid} ({f.face_id}) offset {100 * f.offset_m:+.1f} ± "
+                              f"{100 * f.offset_sigma_m:.1f} cm" for f in explanation.deviating) or "no wall off beyond tolerance"
+            rows.append(("contested", f"{lead} {faces}, {100 * explanation.probability:.2g} % likely (which, the data barely tell)"))
     seconds = summary.timings_s.get("total_s")
     if summary.latency_ms is not None:
         latency = summary.latency_ms

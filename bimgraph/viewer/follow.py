@@ -60,9 +60,11 @@ class RerunListener(Listener):
 
 
 def mark_deviations(viewer: RerunViewer, status_by_face: Mapping[str, str]) -> int:
-    """Colour the faces whose deviation status is "deviating" (deviations.json); returns
-    how many. Call at the end of a run, before `viewer.close()`."""
-    deviating = [face for face, status in status_by_face.items() if status == "deviating"]
-    for face in deviating:
-        viewer.set_face_state(face, FaceState.DEVIATING)
-    return len(deviating)
+    """Colour the faces whose deviation status is "deviating" or "contested"
+    (`session.deviation_statuses`); returns how many. Call at the end of a run, before
+    `viewer.close()`."""
+    states = {"deviating": FaceState.DEVIATING, "contested": FaceState.CONTESTED}
+    marked = [(face, states[status]) for face, status in status_by_face.items() if status in states]
+    for face, state in marked:
+        viewer.set_face_state(face, state)
+    return len(marked)

@@ -42,7 +42,8 @@ class FaceState(IntEnum):
     UNOBSERVED = 0
     OBSERVED = 1
     ASSOCIATED = 2
-    DEVIATING = 3
+    CONTESTED = 3  # one of the walls of a contest: off plan or not, the data barely tell
+    DEVIATING = 4
 
 
 def face_entity(face_id: str) -> str:

@@ -40,15 +40,22 @@ def open_viewer(seq_dir: Path, meta: SequenceMeta, plane_map: PlaneMap, T_B_S_in
 
 
 def deviation_statuses(out_dir: Path) -> dict[str, str] | None:
-    """Each face's status in the run's deviation report, None if it wrote none."""
+    """Each face's status in the run's deviation report ("contested" for a face of a contest
+    that is not deviating either way), None if it wrote none."""
     from bimgraph.deviations.report import JSON_FILE, load_deviations
 
     path = Path(out_dir) / JSON_FILE
-    return {f.face_id: f.status for f in load_deviations(path).faces} if path.is_file() else None
+    if not path.is_file():
+        return None
+    report = load_deviations(path)
+    statuses = {f.face_id: f.status for f in report.faces}
+    for explanation in report.contested:
+        statuses.update({f.face_id: "contested" for f in explanation.deviating if statuses.get(f.face_id) != "deviating"})
+    return statuses
 
 
 def finish(viewer: RerunViewer, out_dir: Path, statuses: dict[str, str] | None = None) -> None:
-    """Colour the deviating faces if the run wrote a deviation report (`statuses`, if read
+    """Colour the deviating and contested faces if the run wrote a deviation report (`statuses`, if read
     already), and close."""
     statuses = deviation_statuses(out_dir) if statuses is None else statuses
     if statuses is not None:

@@ -62,9 +62,15 @@ class _Commands(TyperGroup):
     """The top-level group; its own options and every subcommand's are parsed under
     `_one_line_usage_errors`."""
 
-    def make_context(self, *args, **kwargs):
+    def make_context(self, info_name, args, *rest, **kwargs):
         with _one_line_usage_errors():
-            return super().make_context(*args, **kwargs)
+            # (an unset shell variable: `-o ""` is the current folder to a Path, where a run
+            # would replace what an earlier one left)
+            for i, arg in enumerate(args):
+                if arg == "" or (arg.startswith("--") and arg.endswith("=")):
+                    what = arg[:-1] if arg else args[i - 1] if i and args[i - 1].startswith("-") else f"argument {i + 1}"
+                    raise UsageError(f"{what} is empty (an unset shell variable?)")
+            return super().make_context(info_name, args, *rest, **kwargs)
 
     def invoke(self, ctx):
         with _one_line_usage_errors(ctx):
@@ -111,10 +117,12 @@ def friendly_errors(func):
     return wrapper
 
 
-def console():
+def console(stderr: bool = True):
+    """Progress, warnings and logs go to stderr; a command's result (its report, summary,
+    table) to stdout, where `> file` or a pipe takes it."""
     from rich.console import Console
 
-    return Console(stderr=True)
+    return Console(stderr=stderr)
 
 
 def progress_bar(out):
@@ -147,6 +155,8 @@ def config(
     """
     from bimgraph.config import default_yaml, load_config
 
+    if check is not None and default:
+        raise typer.BadParameter("give --default or --check FILE, not both")
     if check is not None:
         load_config(check)
         typer.echo(f"{check}: valid")
@@ -170,7 +180,10 @@ def bim(
     from bimgraph.bim.ifc_import import import_ifc
     from bimgraph.bim.planemap import save_plane_map
     from bimgraph.config import load_config
+    from bimgraph.errors import InputError
 
+    if output.resolve() == model.resolve():
+        raise InputError(f"{output}: is the model itself; the plane map would replace it")
     cfg = load_config(config_file)
     out = console()
     # (a warning is one line, however long: a log may be grepped by GlobalId)
@@ -178,7 +191,7 @@ def bim(
         plane_map, report = import_ifc(model, cfg.bim, log=lambda text: out.print(text, soft_wrap=True, highlight=False, markup=False),
                                        progress=progress)
     save_plane_map(plane_map, output)
-    out.print(report)
+    console(stderr=False).print(report)
 
 
 @app.command()
@@ -211,7 +224,8 @@ def planes(
         report = extract_into(seq, camera, cfg, on_frame=lambda kf, extraction: progress.advance(task))
     for line in report.problems:
         out.print(f"[yellow]skipped[/yellow] {line}", highlight=False, soft_wrap=True)
-    out.print(f"{report.planes} planes in {report.frames} frames ({len(report.problems)} skipped) -> {seqdir}", soft_wrap=True)
+    console(stderr=False).print(f"{report.planes} planes in {report.frames} frames ({len(report.problems)} skipped) -> {seqdir}",
+                                soft_wrap=True)
 
 
 @app.command()
@@ -246,9 +260,10 @@ def simulate(
         summary = run_simulation(opts, cfg, log=out.print, progress=lambda done, total: bar.update(task, completed=done),
                                  stage=lambda text: bar.update(task, description=f"simulating ({sensor}): {text}"))
     drift = summary["drift"]
-    out.print(f"{output}: {summary['keyframes']} keyframes, {summary['planes']} plane detections, "
-              f"{summary['distance_m']:.1f} m walked; front-end drift {drift['final_drift_percent']:.2f} % of distance, "
-              f"heading {drift['yaw_drift_deg_per_m']:.3f} deg/m; timings {summary['timings_s']}")
+    console(stderr=False).print(
+        f"{output}: {summary['keyframes']} keyframes, {summary['planes']} plane detections, "
+        f"{summary['distance_m']:.1f} m walked; front-end drift {drift['final_drift_percent']:.2f} % of distance, "
+        f"heading {drift['yaw_drift_deg_per_m']:.3f} deg/m; timings {summary['timings_s']}")
 
 
 @app.command()
@@ -302,9 +317,12 @@ def run(
     from bimgraph.evaluation.report import summary_table
     from bimgraph.evaluation.runs import run_summary
 
-    out.print(summary_table(f"bimgraph run: {output}", run_summary(output)))
+    result = console(stderr=False)
+    result.print(summary_table(f"bimgraph run: {output}", run_summary(output)))
     if rrd is not None:
-        out.print(f"recording: {rrd} (open it with: rerun {rrd})")
+        from bimgraph.viewer.rrd import open_command
+
+        result.print(f"recording: {rrd} (open it with: {open_command(rrd)})")
 
 
 @app.command()
@@ -324,11 +342,13 @@ def view(
     Example: bimgraph view out --sequence seq --rrd out/run.rrd
     """
     from bimgraph.config import load_config
+    from bimgraph.viewer.rrd import open_command
     from bimgraph.viewer.session import view_outputs
 
     cfg = load_config(config_file)
-    n = view_outputs(outdir, sequence, cfg, bim=bim_model, rrd=rrd, spawn=spawn or rrd is None)
-    console().print(f"{outdir}: {n} keyframes logged" + (f" to {rrd} (open it with: rerun {rrd})" if rrd else ""))
+    n, total = view_outputs(outdir, sequence, cfg, bim=bim_model, rrd=rrd, spawn=spawn or rrd is None)
+    stopped = f" of the sequence's {total} (the run stopped early)" if n < total else ""
+    console(stderr=False).print(f"{outdir}: {n} keyframes{stopped} logged" + (f" to {rrd} (open it with: {open_command(rrd)})" if rrd else ""))
 
 
 @app.command("eval")

@@ -14,12 +14,18 @@ import yaml
 from bimgraph.errors import FormatError, InputError
 
 
+def existing_file(path: Path) -> Path:
+    """`path`, if it is a file; else InputError saying what it is instead."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: " + ("a folder, not a file" if path.is_dir() else "no such file"))
+    return path
+
+
 def read_text(path: Path) -> str:
     """A text file's content. Missing or unreadable: InputError; not UTF-8 text (a binary file
     given by mistake): FormatError. Never a traceback."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
+    path = existing_file(path)
     try:
         return path.read_text()
     except UnicodeDecodeError:

@@ -67,6 +67,17 @@ def test_a_file_damaged_beyond_its_walls_says_so_in_its_one_line(house_text, tmp
     assert_one_line_error(result, 3, "no walls", "the file is damaged", "IFCWALX")
 
 
+def test_a_parenthesis_too_many_is_found_by_its_line(house_text, tmp_path):
+    """One "(" too many early on: the parser swallows the rest of the file and its first
+    complaint is about ENDSEC at the end; the one line names the statement to fix."""
+    point = entity(house_text, "IFCCARTESIANPOINT")
+    text = house_text.replace(point, point.replace("(", "((", 1), 1)
+    (tmp_path / "m.ifc").write_text(text)
+    result = CliRunner().invoke(app, ["bim", str(tmp_path / "m.ifc"), "-o", str(tmp_path / "planes.json")])
+    line = text[:text.index(point.replace("(", "((", 1))].count("\n") + 1
+    assert_one_line_error(result, 3, "no walls", f"line {line}: its parentheses do not balance")
+
+
 def test_two_entities_of_one_name_are_one_line(house_text, tmp_path):
     """(The geometry kernel would crash on such a file.)"""
     name = entity(house_text, "IFCWALL").split("=")[0]

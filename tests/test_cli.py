@@ -20,6 +20,11 @@ runner = CliRunner()
     (["nosuch"], "bimgraph: no such command 'nosuch'"),
     (["--foo"], "bimgraph: no such option: --foo (see bimgraph --help)"),
     (["config"], "bimgraph config: invalid value: give --default or --check FILE"),
+    (["config", "--default", "--check", "c.yaml"], "give --default or --check FILE, not both"),
+    # an unset shell variable: `-o ""` was the current folder, where a run wrote its outputs
+    (["run", "seq", "-o", ""], "bimgraph: -o is empty (an unset shell variable?)"),
+    (["simulate", "--output=", "-n", "5"], "bimgraph: --output is empty"),
+    (["run", "", "-o", "out"], "bimgraph: argument 2 is empty"),
 ])
 def test_a_refused_command_line_is_one_line_exit_2(tmp_path, args, message):
     result = runner.invoke(app, args, prog_name="bimgraph")
@@ -33,3 +38,17 @@ def test_help_is_still_the_full_help():
     assert "Usage: bimgraph run [OPTIONS]" in result.stdout and "--spawn" in result.stdout and "Example:" in result.stdout
     alone = runner.invoke(app, [], prog_name="bimgraph")  # no arguments: the help, as before
     assert "Usage: bimgraph [OPTIONS] COMMAND" in alone.output and "simulate" in alone.output
+
+
+@pytest.mark.parametrize("args", [["bim", "{tmp}", "-o", "{tmp}/planes.json"], ["config", "--check", "{tmp}"]])
+def test_a_folder_where_a_file_belongs_is_named_so(tmp_path, args):
+    result = runner.invoke(app, [a.format(tmp=tmp_path) for a in args], prog_name="bimgraph")
+    assert_one_line_error(result, 4 if args[0] == "config" else 2, f"{tmp_path}: a folder, not a file")
+
+
+def test_bim_never_writes_over_its_model(tmp_path):
+    model = tmp_path / "model.ifc"
+    model.write_text("ISO-10303-21;\n")
+    result = runner.invoke(app, ["bim", str(model), "-o", str(tmp_path / "." / "model.ifc")], prog_name="bimgraph")
+    assert_one_line_error(result, 2, "is the model itself")
+    assert model.read_text() == "ISO-10303-21;\n"

@@ -45,6 +45,11 @@ def test_a_missing_configuration_file_is_one_line(tmp_path):
     # (both passed and then failed the run: an overflow, an array of 30 GiB)
     ("backend:\n  noise:\n    odometry_trans_m: 1.0e+300\n", "backend.noise.odometry_trans_m: Input should be less than or equal to 1000"),
     ("deviations:\n  visibility_grid_m: 1.0e-9\n", "deviations.visibility_grid_m: Input should be greater than or equal to 0.01"),
+    # a value of the wrong type is refused, not converted (true was a tolerance of 1 m)
+    ("deviations:\n  tolerance_m: true\n", "deviations.tolerance_m: Input should be a valid number"),
+    ("deviations:\n  tolerance_m: \"0.05\"\n", "deviations.tolerance_m: Input should be a valid number"),
+    ("backend:\n  write_every: true\n", "backend.write_every: Input should be a valid integer"),
+    ("deviations:\n  online_refine: 1\n", "deviations.online_refine: Input should be a valid boolean"),
 ])
 def test_check_refuses_what_a_run_could_not_use(tmp_path, yaml, message):
     (tmp_path / "c.yaml").write_text(yaml)
@@ -63,6 +68,15 @@ def test_a_section_keeps_the_defaults_of_the_keys_the_file_leaves_out(tmp_path):
     assert cfg.sim.as_built_site.clutter_per_m2 == 0.08 and cfg.sim.as_built_site.partitions == 3
     assert cfg.backend.noise == default.backend.noise.model_copy(update={"bim_offset_m": 0.02})
     assert cfg.backend.offline == default.backend.offline
+
+
+def test_integers_for_floats_and_lists_for_ranges_are_what_yaml_writes(tmp_path):
+    from bimgraph.config import load_config
+
+    path = tmp_path / "c.yaml"
+    path.write_text("deviations:\n  k_sigma: 2\nsim:\n  initial_rot_error_deg: [1, 3.5]\n")
+    cfg = load_config(path)
+    assert cfg.deviations.k_sigma == 2.0 and cfg.sim.initial_rot_error_deg == (1.0, 3.5)
 
 
 def test_the_default_configuration_is_valid(tmp_path):

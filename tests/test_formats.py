@@ -144,6 +144,8 @@ def test_sequence_loads(tmp_path):
         (dict(KF, index=1, stamp=0.1, planes=[dict(KF["planes"][0], polygon=[[0, 0, 2], [1, 0, 2], [1, 1, 52]])]),
          r"line 2: planes\[0\]: polygon: a point lies 50.00 m off the plane"),
         (dict(KF, index=1, planes=[dict(KF["planes"][0], cov=[[1, 0, 0], [0, -1, 0], [0, 0, 1]])]), "positive definite"),
+        # (a pose given to 1e-15 m made the graph singular, reported at another keyframe)
+        (dict(KF, index=1, stamp=0.1, cov=(1e-30 * np.eye(6)).tolist()), r"line 2: cov: .*a sigma of 1e-15, below 1e-09"),
     ],
 )
 def test_bad_keyframe_names_line_and_field(tmp_path, bad, message):
@@ -158,4 +160,13 @@ def test_initial_alignment_needs_a_unit_quaternion(tmp_path):
     meta = {"format": "bimgraph.sequence", "version": 1, "initial_alignment": {"T_B_S": [0, 0, 0, 0, 0, 0, 0]}}
     (tmp_path / "seq" / "sequence.json").write_text(json.dumps(meta))
     with pytest.raises(FormatError, match=r"sequence.json: initial_alignment.T_B_S: quaternion has norm 0.0000, must be unit$"):
+        load_sequence(tmp_path / "seq")
+
+
+def test_gravity_aligned_must_be_a_boolean(tmp_path):
+    """"yes" ran as true: a flag that fixes two of the extrinsic's directions is no guess."""
+    _write_sequence(tmp_path / "seq", [KF])
+    meta = {"format": "bimgraph.sequence", "version": 1, "gravity_aligned": "yes"}
+    (tmp_path / "seq" / "sequence.json").write_text(json.dumps(meta))
+    with pytest.raises(FormatError, match=r"sequence.json: gravity_aligned: Input should be a valid boolean$"):
         load_sequence(tmp_path / "seq")

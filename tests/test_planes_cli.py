@@ -1,5 +1,6 @@
 """`bimgraph planes` end to end: a TUM RGB-D folder with some bad frames, then the sequence."""
 
+import json
 import cv2
 import numpy as np
 import pytest
@@ -69,6 +70,35 @@ def test_planes_on_sequence_with_pinhole_options(tmp_path):
         for a, b in zip(kf_before.planes, kf_after.planes):
             np.testing.assert_allclose(a.plane, b.plane, atol=1e-9)
             np.testing.assert_allclose(a.cov, b.cov, atol=1e-12)
+
+
+def test_planes_again_from_the_trajectory_keeps_what_the_user_added(tmp_path):
+    """The README's workflow: `planes -t`, then `model` and `initial_alignment` added to
+    sequence.json by hand, then `planes -t` again (another trajectory, other settings): the
+    second run replaced sequence.json and lost them."""
+    make_tum_folder(tmp_path, count=2)
+    args = ["planes", str(tmp_path), "-t", str(tmp_path / "traj.txt"), "--fx", "525", "--fy", "525", "--cx", "319.5", "--cy", "239.5"]
+    assert runner.invoke(app, args).exit_code == 0
+    meta = json.loads((tmp_path / "sequence.json").read_text())
+    meta.update(model="planes.json", gravity_aligned=True,
+                initial_alignment={"T_B_S": [1.0, 2.0, 0.0, 0.0, 0.0, 0.0, 1.0], "sigma_rot_deg": 2.0, "sigma_trans_m": 0.2})
+    (tmp_path / "sequence.json").write_text(json.dumps(meta))
+    args[args.index("--fx") + 1] = "530"
+    again = runner.invoke(app, args)
+    assert again.exit_code == 0, again.output
+    kept = load_sequence(tmp_path).meta
+    assert kept.model == "planes.json" and kept.gravity_aligned and kept.initial_alignment.T_B_S[:2] == (1.0, 2.0)
+    assert kept.camera.fx == 530
+
+
+def test_planes_refuses_a_principal_point_outside_the_image_and_an_empty_trajectory(tmp_path):
+    make_tum_folder(tmp_path, count=2)
+    args = ["planes", str(tmp_path), "-t", str(tmp_path / "traj.txt"), "--fx", "525", "--fy", "525", "--cx", "-5", "--cy", "239.5"]
+    assert_one_line_error(runner.invoke(app, args), 4, "the principal point (-5.0, 239.5) lies outside the 640x480 image")
+    (tmp_path / "empty.txt").write_text("# no poses\n")
+    args[3], args[args.index("--cx") + 1] = str(tmp_path / "empty.txt"), "319.5"
+    assert_one_line_error(runner.invoke(app, args), 3, "empty.txt: no poses (an empty trajectory)")
+    assert not (tmp_path / "sequence.json").exists()
 
 
 def test_planes_errors(tmp_path):

@@ -17,7 +17,7 @@ import numpy as np
 import shapely
 
 from bimgraph.bim import curved, faces as F
-from bimgraph.bim.ifc_read import ModelReader, open_model
+from bimgraph.bim.ifc_read import ModelReader, open_model, unbalanced_statement
 from bimgraph.bim.planemap import BimFace, PlaneMap, Space
 from bimgraph.bim.rooms import Claim, Junctions, Rooms, boundary_claims, split_at, split_face
 from bimgraph.config import BimImportConfig
@@ -46,8 +46,10 @@ def import_ifc(path, cfg: BimImportConfig, log=None, progress=None):
     walls = model.by_type("IfcWall")
     if not walls:
         if problems:  # (lost to the damage, most likely)
+            line = unbalanced_statement(path)
+            where = f"the first: {problems[0]}" if line is None else f"line {line}: its parentheses do not balance"
             raise FormatError(f"{path}: the model has no walls (IfcWall); the file is damaged "
-                              f"({len(problems)} problems, the first: {problems[0]})")
+                              f"({len(problems)} problems, {where})")
         raise InputError(f"{path}: the model has no walls (IfcWall)")
     for message in problems[:_PARSE_WARNINGS]:
         log(f"warning: {path.name}: {message}")

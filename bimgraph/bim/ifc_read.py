@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,6 +27,7 @@ import shapely
 from bimgraph.bim import ifc_schema as schema
 from bimgraph.bim.faces import loop_normal
 from bimgraph.errors import FormatError, InputError
+from bimgraph.files import existing_file
 from bimgraph.geometry import inverse
 
 _END_MARK = b"END-ISO-10303-21;"
@@ -58,9 +60,7 @@ def open_model(path) -> tuple[ifcopenshell.file, list[str]]:
     reference to no entity: past such an error it may have lost entities, so the caller must
     not read the model in silence). A missing file is an InputError, a non-IFC or truncated
     one, or one that names two entities alike, a FormatError."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
+    path = existing_file(path)
     with open(path, "rb") as stream:
         head = stream.read(64)
         stream.seek(0, 2)
@@ -84,6 +84,33 @@ def open_model(path) -> tuple[ifcopenshell.file, list[str]]:
     if duplicates:  # (the geometry kernel crashes on such a file)
         raise FormatError(f"{path}: two entities with one name ({duplicates[0]})")
     return model, problems
+
+
+_STEP_TOKENS = re.compile(rb"'(?:[^']|'')*'|[();\n]")
+
+
+def unbalanced_statement(path) -> int | None:
+    """The line of the first statement of an IFC file whose parentheses do not balance, or
+    None. (One "(" too many makes the parser swallow the rest of the file, and its first
+    complaint is about ENDSEC, megabytes on: this names the line to fix.)"""
+    line, start, depth = 1, 1, 0
+    for token in _STEP_TOKENS.finditer(Path(path).read_bytes()):
+        text = token.group()
+        if text == b"\n":
+            line += 1
+        elif text == b"(":
+            start = line if depth == 0 else start  # (a statement's first parenthesis)
+            depth += 1
+        elif text == b")":
+            depth -= 1
+            if depth < 0:
+                return line
+        elif text == b";":
+            if depth:
+                return start
+        else:  # a string: its own newlines count
+            line += text.count(b"\n")
+    return None
 
 
 def _parse_problems(log_text: str) -> list[str]:

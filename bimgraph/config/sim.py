@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pydantic import Field, model_validator
 
-from bimgraph.config.section import Section
+from bimgraph.config.section import Range, Section
 from bimgraph.config.sensing import PlaneNoiseConfig
 
 
@@ -90,8 +90,8 @@ class SimConfig(Section):
     height: int = Field(480, gt=0, description="image height in pixels")
     fx: float = Field(525.0, gt=0, description="focal length in pixels (x)")
     fy: float = Field(525.0, gt=0, description="focal length in pixels (y)")
-    initial_rot_error_deg: tuple[float, float] = Field((1.0, 2.0), description="range of the yaw error of the simulated manual alignment")
-    initial_trans_error_m: tuple[float, float] = Field((0.1, 0.2), description="range of the horizontal position error of the manual alignment")
+    initial_rot_error_deg: Range = Field((1.0, 2.0), description="range of the yaw error of the simulated manual alignment")
+    initial_trans_error_m: Range = Field((0.1, 0.2), description="range of the horizontal position error of the manual alignment")
     as_built_office: AsBuiltConfig = AsBuiltConfig()
     as_built_site: AsBuiltConfig = AsBuiltConfig(
         offset_fraction=0.25, tilt_fraction=0.15, missing_wall_fraction=0.1, clutter_per_m2=0.08, boards_per_m2=0.03, partitions=3

@@ -17,8 +17,7 @@ from bcf.v3.visinfo import VisualizationInfoHandler, build_camera_from_vectors, 
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import DeviationConfig
 from bimgraph.deviations.report import DeviationsFile
-from bimgraph.errors import InputError
-from bimgraph.files import ensure_folder
+from bimgraph.files import ensure_folder, existing_file
 from bimgraph.geometry import pose_from_tum
 
 BCF_FILE = "deviations.bcf"
@@ -83,9 +82,7 @@ def write_bcf(deviations: DeviationsFile, plane_map: PlaneMap, path: Path, cfg: 
 
 def read_bcf_topics(path: Path) -> list[tuple[str, list[str]]]:
     """(title, selected IFC GlobalIds of its viewpoints) per topic of a BCF file."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
+    path = existing_file(path)
     with BcfXml.load(path) as bcf:
         out = []
         for topic in bcf.topics.values():

@@ -13,8 +13,8 @@ from typing import Literal, get_args
 from pydantic import BaseModel, ConfigDict, Field
 
 from bimgraph.deviations.estimate import DeviationReport, FaceReport
-from bimgraph.errors import FormatError, InputError
-from bimgraph.files import read_json, write_atomic, write_json
+from bimgraph.errors import FormatError
+from bimgraph.files import existing_file, read_json, write_atomic, write_json
 from bimgraph.validation import parse_model
 
 FORMAT = "bimgraph.deviations"
@@ -151,8 +151,6 @@ def load_deviations(path: Path) -> DeviationsFile:
 
 def read_csv_rows(path: Path) -> list[dict[str, str]]:
     """The CSV's rows as strings, for checks and spreadsheets' round trips."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
+    path = existing_file(path)
     with path.open(newline="") as fh:
         return list(csv.DictReader(fh))

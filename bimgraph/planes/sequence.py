@@ -11,7 +11,7 @@ import numpy as np
 from bimgraph.config import Config, DepthNoiseConfig, ExtractionConfig
 from bimgraph.errors import BimgraphError, ConfigError, InputError
 from bimgraph.planes.extractor import DetectedPlane, Extraction, PlaneExtractor
-from bimgraph.sequence.format import META_FILE, Camera, Keyframe, PlaneObservation, Sequence, load_sequence, save_sequence
+from bimgraph.sequence.format import META_FILE, Camera, Keyframe, PlaneObservation, Sequence, load_meta, load_sequence, save_sequence
 from bimgraph.sequence.tum_rgbd import DEPTH_LIST, load_camera, load_tum_rgbd, read_depth_png, read_image_list
 from bimgraph.validation import parse_model
 
@@ -131,7 +131,12 @@ def open_input(folder: Path, trajectory: Path | None = None, intrinsics: Path | 
     if trajectory is not None:
         _, names = read_image_list(folder / DEPTH_LIST)
         camera = resolve_camera(None, camera_file, pinhole, folder / names[0] if names else None)
-        return load_tum_rgbd(folder, trajectory, camera, max_dt=max_dt), camera
+        seq = load_tum_rgbd(folder, trajectory, camera, max_dt=max_dt)
+        if (folder / META_FILE).is_file():
+            # run again (a new trajectory, other settings): what the user added by hand, the
+            # model and the initial alignment, stays
+            seq.meta = load_meta(folder).model_copy(update={"camera": camera, "sensor": seq.meta.sensor})
+        return seq, camera
     if not (folder / META_FILE).is_file():
         raise InputError(f"{folder}: no {META_FILE}; for a TUM RGB-D folder give --trajectory")
     seq = load_sequence(folder)

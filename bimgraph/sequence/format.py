@@ -16,7 +16,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from bimgraph.errors import FormatError, InputError
-from bimgraph.files import parse_json, read_json, write_atomic, write_json
+from bimgraph.files import existing_file, parse_json, read_json, write_atomic, write_json
 from bimgraph.geometry import pose_from_tum
 from bimgraph.validation import Pose7, parse_model, require_unit
 
@@ -29,6 +29,9 @@ Vec3 = tuple[float, float, float]
 Mat3 = tuple[Vec3, Vec3, Vec3]
 
 
+_MIN_SIGMA = 1e-9
+
+
 def _check_square_psd(value, size: int):
     if value is None:
         return value
@@ -37,8 +40,13 @@ def _check_square_psd(value, size: int):
         raise ValueError(f"must be {size}x{size}")
     if not np.allclose(m, m.T, atol=1e-9 * max(1.0, np.abs(m).max())):
         raise ValueError("covariance is not symmetric")
-    if np.linalg.eigvalsh(m).min() <= 0:
+    smallest = np.linalg.eigvalsh(m).min()
+    if smallest <= 0:
         raise ValueError("covariance is not positive definite")
+    # (a keyframe's pose given to 1e-15 m made the graph singular, found elsewhere, far from it)
+    if smallest < _MIN_SIGMA**2:
+        raise ValueError(f"covariance has a sigma of {np.sqrt(smallest):.1g}, below {_MIN_SIGMA:g} (m or rad): "
+                         "no sensor measures so finely, and the graph would be singular")
     return value
 
 
@@ -53,6 +61,12 @@ class Camera(BaseModel):
     cx: float
     cy: float
     depth_scale: float = Field(default=5000.0, gt=0)
+
+    @model_validator(mode="after")
+    def _principal_point_in_the_image(self):
+        if not (0 <= self.cx <= self.width and 0 <= self.cy <= self.height):
+            raise ValueError(f"the principal point ({self.cx}, {self.cy}) lies outside the {self.width}x{self.height} image")
+        return self
 
     @property
     def K(self) -> np.ndarray:
@@ -160,7 +174,7 @@ class SequenceMeta(BaseModel):
     model: str | None = None
     camera: Camera | None = None
     sensor: Literal["planes", "depth", "external"] = "external"
-    gravity_aligned: bool = False
+    gravity_aligned: bool = Field(False, strict=True)  # ("yes" or 1 is a mistake, not true)
     initial_alignment: InitialAlignment | None = None
     simulated: dict | None = None
 
@@ -187,9 +201,7 @@ def load_meta(root: Path) -> SequenceMeta:
 
 def iter_keyframes(root: Path):
     """Yield keyframes one by one, validating each line as it comes."""
-    path = Path(root) / KEYFRAMES_FILE
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
+    path = existing_file(Path(root) / KEYFRAMES_FILE)
     previous = None
     with path.open() as fh:
         for lineno, line in _lines(fh, path):

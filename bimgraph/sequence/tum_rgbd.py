@@ -111,6 +111,8 @@ def load_tum_rgbd(folder: Path, trajectory: Path, camera: Camera, root: Path | N
     depth_stamps, depth_names = read_image_list(folder / DEPTH_LIST)
     rgb_stamps, rgb_names = read_image_list(folder / RGB_LIST) if (folder / RGB_LIST).is_file() else (np.zeros(0), [])
     pose_stamps, poses = read_tum(trajectory)
+    if not len(poses):
+        raise FormatError(f"{trajectory}: no poses (an empty trajectory)")
     pose_of = nearest(depth_stamps, pose_stamps, max_dt)
     rgb_of = nearest(depth_stamps, rgb_stamps, max_dt)
     keyframes = []

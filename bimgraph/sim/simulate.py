@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 
 from bimgraph.config import Config
 from bimgraph.errors import ConfigError, InputError
-from bimgraph.files import new_folder
+from bimgraph.files import existing_file, new_folder
 from bimgraph.geometry import make_pose
 from bimgraph.sequence.format import Camera, InitialAlignment, Keyframe, Sequence, SequenceMeta, save_sequence
 from bimgraph.sequence.groundtruth import LABELS_FOLDER, GroundTruth, pose7, rounded, write_groundtruth
@@ -57,8 +57,8 @@ class SimOptions:
             raise ConfigError(f"--keyframes must be at least 2, not {self.keyframes}")
         if self.seed < 0:
             raise ConfigError(f"--seed must be non-negative, not {self.seed}")
-        if self.ifc is not None and not Path(self.ifc).is_file():
-            raise InputError(f"{self.ifc}: no such file")
+        if self.ifc is not None:
+            existing_file(self.ifc)
 
 
 def freeze_ifc(path: Path, name: str) -> None:

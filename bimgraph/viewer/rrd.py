@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bimgraph.errors import InputError
+from bimgraph.files import existing_file
 
 
 @dataclass
@@ -34,6 +35,12 @@ def rerun_binary() -> Path:
     return Path(found)
 
 
+def open_command(rrd: Path) -> str:
+    """The command that opens the recording `rrd`: `rerun FILE`, with the executable's full
+    path where the environment is not activated (its `rerun` not on PATH)."""
+    return f"{'rerun' if shutil.which('rerun') else rerun_binary()} {rrd}"
+
+
 def verify(path: Path) -> None:
     """Raise InputError unless `rerun rrd verify` accepts the file."""
     done = subprocess.run([str(rerun_binary()), "rrd", "verify", str(path)], capture_output=True, text=True)
@@ -47,9 +54,7 @@ def component_counts(path: Path, store: str = "recording") -> dict[str, dict[str
     import pyarrow.compute as pc
     from rerun.chunk import RrdReader
 
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
+    path = existing_file(path)
     reader = RrdReader(str(path))
     stores = reader.recordings() if store == "recording" else reader.blueprints()
     if not stores:

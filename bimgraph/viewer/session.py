@@ -64,10 +64,10 @@ def finish(viewer: RerunViewer, out_dir: Path, statuses: dict[str, str] | None =
 
 
 def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | None = None,
-                 rrd: Path | None = None, spawn: bool = False) -> int:
+                 rrd: Path | None = None, spawn: bool = False) -> tuple[int, int]:
     """Log a finished run's output folder (trajectory_bim.tum, trajectory_slam.tum,
     associations.json, deviations.json if any) against its sequence; returns the number
-    of keyframes logged. The extrinsic at each keyframe is recovered as
+    of keyframes logged and the sequence's (fewer logged: the run stopped early). The extrinsic at each keyframe is recovered as
     `T_B_C @ inverse(T_S_C)` from the two trajectories; associations are the final ones."""
     from bimgraph.backend.pipeline import initial_alignment, load_model, model_path, run_model
     from bimgraph.backend.results import (ASSOCIATIONS, SUMMARY, TRAJECTORY_BIM, TRAJECTORY_SLAM, check_stamps,
@@ -82,6 +82,8 @@ def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | N
         if named is None:
             raise InputError(f"{out_dir}: the run does not name its sequence; give it with --sequence SEQDIR")
         seq_dir = Path(named)
+        if not seq_dir.is_dir():
+            raise InputError(f"{seq_dir}: the run's sequence is not there (moved?); give it with --sequence SEQDIR")
     seq = load_sequence(seq_dir)
     plane_map = load_model(bim or run_model(out_dir, seq.root) or model_path(seq.root, seq.meta, None), cfg)
     stamps, T_B_C = read_tum(out_dir / TRAJECTORY_BIM)
@@ -102,7 +104,7 @@ def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | N
                         planes=kf.planes, plane_faces=[faces.get((kf.index, i)) for i in range(len(kf.planes))],
                         depth=depth)
     finish(viewer, out_dir, statuses)
-    return len(keyframes)
+    return len(keyframes), len(seq.keyframes)
 
 
 def follow_run(inputs, cfg: Config, rrd: Path | None = None, spawn: bool = False):

@@ -115,6 +115,9 @@ def planes(
     cfg = load_config(config_file)
     seq, camera = open_input(seqdir, trajectory, intrinsics, (fx, fy, cx, cy), max_dt)
     out = console()
+    if trajectory is not None and seq.meta.initial_alignment is not None:
+        out.print(f"note: {seqdir}/sequence.json keeps its initial_alignment and gravity_aligned: redo them if "
+                  f"{trajectory.name}'s frame S is not the one they were set for", highlight=False, soft_wrap=True)
     with progress_bar(out) as progress:
         task = progress.add_task("extracting planes", total=sum(kf.depth is not None for kf in seq.keyframes))
         report = extract_into(seq, camera, cfg, on_frame=lambda kf, extraction: progress.advance(task))

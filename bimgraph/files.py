@@ -6,6 +6,7 @@ import contextlib
 import json
 import math
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -52,11 +53,25 @@ def parse_json(text: str, where: str, lines: bool = False):
         raise FormatError(f"{where}: invalid JSON ({str(err).splitlines()[0]})") from None
 
 
+class _Yaml12Floats(yaml.SafeLoader):
+    """YAML 1.1 reads `1e-3` (no dot, or an exponent without its sign) as a string; 1.2, and
+    whoever writes a sigma so, as a number."""
+
+
+_Yaml12Floats.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?(?:[eE][-+]?[0-9]+)?
+                   |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+                   |[-+]?\.(?:inf|Inf|INF)
+                   |\.(?:nan|NaN|NAN))$""", re.X),
+    list("-+0123456789."))
+
+
 def read_yaml(path: Path):
     """A YAML file's data (None if it is empty); a syntax error is a FormatError in one line
     naming the line (PyYAML's own message spans five, with a drawing of the place)."""
     try:
-        return yaml.safe_load(read_text(path))
+        return yaml.load(read_text(path), Loader=_Yaml12Floats)  # noqa: S506 (a SafeLoader)
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f"line {mark.line + 1}: " if mark is not None else ""

@@ -55,8 +55,9 @@ class Commands(TyperGroup):
             # (an unset shell variable: `-o ""` is the current folder to a Path, where a run
             # would replace what an earlier one left)
             for i, arg in enumerate(args):
-                if arg == "" or (arg.startswith("--") and arg.endswith("=")):
-                    what = arg[:-1] if arg else args[i - 1] if i and args[i - 1].startswith("-") else f"argument {i + 1}"
+                option, equals, value = arg.partition("=")
+                if arg == "" or (arg.startswith("--") and equals and not value):
+                    what = option if arg else args[i - 1] if i and args[i - 1].startswith("-") else f"argument {i + 1}"
                     raise UsageError(f"{what} is empty (an unset shell variable?)")
             return super().make_context(info_name, args, *rest, **kwargs)
 

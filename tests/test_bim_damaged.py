@@ -11,6 +11,7 @@ from ifc_house import house, wall_named
 from typer.testing import CliRunner
 
 from bimgraph.bim.ifc_import import import_ifc
+from bimgraph.bim.ifc_read import unbalanced_statement
 from bimgraph.bim.ifc_write import write_ifc
 from bimgraph.cli import app
 from bimgraph.config import BimImportConfig
@@ -76,6 +77,14 @@ def test_a_parenthesis_too_many_is_found_by_its_line(house_text, tmp_path):
     result = CliRunner().invoke(app, ["bim", str(tmp_path / "m.ifc"), "-o", str(tmp_path / "planes.json")])
     line = text[:text.index(point.replace("(", "((", 1))].count("\n") + 1
     assert_one_line_error(result, 3, "no walls", f"line {line}: its parentheses do not balance")
+
+
+def test_the_unbalanced_statement_is_found_past_strings_and_comments(tmp_path):
+    header = "ISO-10303-21;\nHEADER;\n/* an exporter's\n comment ( */\nFILE_NAME('a;(b''c');\nENDSEC;\nDATA;\n"
+    (tmp_path / "m.ifc").write_text(header + "#1=IFCX('x)');\n#2=IFCX((1.,2.);\n#3=IFCY(());\nENDSEC;\n")
+    assert unbalanced_statement(tmp_path / "m.ifc") == 9
+    (tmp_path / "ok.ifc").write_text(header + "#1=IFCX('(',(1.,2.));\nENDSEC;\n")
+    assert unbalanced_statement(tmp_path / "ok.ifc") is None
 
 
 def test_two_entities_of_one_name_are_one_line(house_text, tmp_path):

@@ -64,6 +64,21 @@ def test_bad_json_names_the_field(tmp_path, written):
         load_deviations(tmp_path / "bad.json")
 
 
+@pytest.mark.parametrize("edit, message", [
+    # (the printout multiplied a null offset: a traceback)
+    (lambda d: d["faces"][0].update(status="deviating", offset_m=None), r"faces\[0\]: .*a face deviating has its offset_m"),
+    (lambda d: d.update(contested=[{"probability": 0.5, "deviating": [dict(d["faces"][0], status="within_tolerance")]}]),
+     r"contested\[0\]: .*the faces of an explanation are deviating ones"),
+])
+def test_a_report_that_cannot_be_read_as_one_names_the_field(written, tmp_path, edit, message):
+    _, _, out = written
+    raw = json.loads((out / JSON_FILE).read_text())
+    edit(raw)
+    (tmp_path / "bad.json").write_text(json.dumps(raw))
+    with pytest.raises(FormatError, match=message):
+        load_deviations(tmp_path / "bad.json")
+
+
 # B 2.5 km and a turn of 30 degrees away from the IFC world frame, as in a georeferenced model
 T_W_B = make_pose(Rotation.from_euler("z", 30, degrees=True).as_matrix(), [2500.0, -1200.0, 35.0])
 

@@ -89,6 +89,12 @@ def test_planes_again_from_the_trajectory_keeps_what_the_user_added(tmp_path):
     kept = load_sequence(tmp_path).meta
     assert kept.model == "planes.json" and kept.gravity_aligned and kept.initial_alignment.T_B_S[:2] == (1.0, 2.0)
     assert kept.camera.fx == 530
+    assert "keeps its initial_alignment" in again.stderr  # (which a trajectory in another frame S voids)
+    # an earlier camera the checks now refuse does not block the run that replaces it
+    meta = json.loads((tmp_path / "sequence.json").read_text())
+    meta["camera"]["cx"] = -5.0
+    (tmp_path / "sequence.json").write_text(json.dumps(meta))
+    assert runner.invoke(app, args).exit_code == 0 and load_sequence(tmp_path).meta.camera.cx == 319.5
 
 
 def test_planes_refuses_a_principal_point_outside_the_image_and_an_empty_trajectory(tmp_path):

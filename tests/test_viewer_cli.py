@@ -89,12 +89,16 @@ def test_run_rrd_holds_the_whole_run(online_run, seq_dir):
 def test_view_replays_the_outputs(online_run, seq_dir):
     root, scene = seq_dir
     faces = [f.id for f in scene.plane_map.faces]
-    write_json(online_run / JSON_FILE, DeviationsFile(tolerance_m=0.02, tilt_tolerance_deg=0.5, k_sigma=2.0, unplanned=[], faces=[
-        FaceRecord(face_id=faces[1], wall_guid="w", status="deviating"),
-        FaceRecord(face_id=faces[2], wall_guid="w", status="within_tolerance"),
-        FaceRecord(face_id=faces[3], wall_guid="w", status="not_enough_evidence")], contested=[
-        ExplanationRecord(probability=0.6, deviating=[FaceRecord(face_id=faces[3], wall_guid="w", status="deviating")]),
-        ExplanationRecord(probability=0.4, deviating=[FaceRecord(face_id=faces[1], wall_guid="w", status="deviating")])],
+
+    def face(i, status):
+        return FaceRecord(face_id=faces[i], wall_guid="w", status=status, offset_m=0.05, offset_sigma_m=0.01, tilt_deg=0.1,
+                          tilt_sigma_deg=0.1)
+
+    write_json(online_run / JSON_FILE, DeviationsFile(
+        tolerance_m=0.02, tilt_tolerance_deg=0.5, k_sigma=2.0, unplanned=[],
+        faces=[face(1, "deviating"), face(2, "within_tolerance"), face(3, "not_enough_evidence")],
+        contested=[ExplanationRecord(probability=0.6, deviating=[face(3, "deviating")]),
+                   ExplanationRecord(probability=0.4, deviating=[face(1, "deviating")])],
     ).model_dump(mode="json"))
     result = CliRunner().invoke(app, ["view", str(online_run), "--sequence", str(root), "--rrd", str(online_run / "view.rrd")])
     assert result.exit_code == 0, result.output

@@ -86,7 +86,7 @@ def open_model(path) -> tuple[ifcopenshell.file, list[str]]:
     return model, problems
 
 
-_STEP_TOKENS = re.compile(rb"'(?:[^']|'')*'|[();\n]")
+_STEP_TOKENS = re.compile(rb"'(?:[^']|'')*'|/\*.*?\*/|[();\n]", re.DOTALL)
 
 
 def unbalanced_statement(path) -> int | None:
@@ -108,7 +108,7 @@ def unbalanced_statement(path) -> int | None:
         elif text == b";":
             if depth:
                 return start
-        else:  # a string: its own newlines count
+        else:  # a string or a comment: its own newlines count
             line += text.count(b"\n")
     return None
 

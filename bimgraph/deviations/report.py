@@ -10,7 +10,7 @@ import io
 from pathlib import Path
 from typing import Literal, get_args
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from bimgraph.deviations.estimate import DeviationReport, FaceReport
 from bimgraph.errors import FormatError
@@ -45,6 +45,13 @@ class FaceRecord(BaseModel):
     landmark: int | None = None
     matched_by: Literal["graph", "proximity", ""] = ""
 
+    @model_validator(mode="after")
+    def _measured_faces_have_their_figures(self):
+        figures = ("offset_m", "offset_sigma_m", "tilt_deg", "tilt_sigma_deg")
+        if self.status != "possibly_not_built" and (missing := [f for f in figures if getattr(self, f) is None]):
+            raise ValueError(f"a face {self.status.replace('_', ' ')} has its {', '.join(missing)}")
+        return self
+
 
 class UnplannedRecord(BaseModel):
     """A large observed plane that matches no face: `normal . x + offset = 0` in B."""
@@ -65,6 +72,12 @@ class ExplanationRecord(BaseModel):
     model_config = ConfigDict(extra="forbid")
     probability: float = Field(ge=0, le=1)
     deviating: list[FaceRecord]
+
+    @model_validator(mode="after")
+    def _faces_deviate(self):
+        if any(f.status != "deviating" for f in self.deviating):
+            raise ValueError("the faces of an explanation are deviating ones")
+        return self
 
 
 class DeviationsFile(BaseModel):

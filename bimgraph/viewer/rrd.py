@@ -5,6 +5,7 @@ check what a recording holds without opening the viewer."""
 
 from __future__ import annotations
 
+import shlex
 import shutil
 import subprocess
 import sys
@@ -37,8 +38,13 @@ def rerun_binary() -> Path:
 
 def open_command(rrd: Path) -> str:
     """The command that opens the recording `rrd`: `rerun FILE`, with the executable's full
-    path where the environment is not activated (its `rerun` not on PATH)."""
-    return f"{'rerun' if shutil.which('rerun') else rerun_binary()} {rrd}"
+    path where the environment is not activated (its `rerun` not on PATH). A hint: where no
+    `rerun` is found at all, still `rerun FILE`, the recording being written either way."""
+    try:
+        command = "rerun" if shutil.which("rerun") else str(rerun_binary())
+    except InputError:
+        command = "rerun"
+    return f"{shlex.quote(command)} {shlex.quote(str(rrd))}"
 
 
 def verify(path: Path) -> None:

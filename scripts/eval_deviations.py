@@ -96,7 +96,20 @@ def score(data, truth, cfg: DeviationConfig) -> dict:
         "not_built_precision": sum(not truth[f.face_id][2] for f in not_built) / len(not_built) if not_built else 1.0,
         "not_built_recall": sum(not truth[f.face_id][2] for f in not_built) / len(missing) if missing else 1.0,
         "unplanned": len(data.unplanned),
+        **contest_score(data, gt_deviating),
     }
+
+
+def contest_score(data, gt_deviating) -> dict:
+    """The report's contest (`deviations.json`'s `contested`), if any: `contest` 1; `contest_true`,
+    the rank (1: the likelier) of the explanation that names exactly the contested faces that
+    truly deviate, 0 if neither does."""
+    if not data.contested:
+        return {"contest": 0, "contest_true": 0}
+    contested = {f.face_id for e in data.contested for f in e.deviating}
+    truly = {face for face in contested if gt_deviating(face)}
+    rank = next((i + 1 for i, e in enumerate(data.contested) if {f.face_id for f in e.deviating} == truly), 0)
+    return {"contest": 1, "contest_true": rank}
 
 
 def evaluate(plane_map: PlaneMap, keyframes, initial, truth, T_B_C_true, T_B_S_true, camera, args,

@@ -54,3 +54,22 @@ def test_a_face_of_another_storey_counts_as_built(script):
     scores = script.score(report, {"gone": (0.0, 0.0, False), "kept": (0.0, 0.0, True)}, DeviationConfig())
     assert scores["faces"] == 2 and scores["not_built_flagged"] == 2
     assert scores["not_built_precision"] == 0.5 and scores["not_built_recall"] == 1.0
+
+
+def test_the_contest_is_scored_by_the_explanation_that_is_the_truth(script):
+    """(The twenty-sixth session counted these by hand over 56 walks.)"""
+    from bimgraph.config import DeviationConfig
+    from bimgraph.deviations.estimate import Deviation, DeviationReport, Explanation, FaceReport
+
+    def deviating(face_id):
+        return FaceReport(face_id, "g", "", "", "deviating", 10, Deviation(0.06, 0.01, 0.0, 0.1))
+
+    faces = [FaceReport(face, "g", "", "", "not_enough_evidence", 10, Deviation(0.03, 0.04, 0.0, 0.1)) for face in "ew"]
+    report = DeviationReport(0.02, 0.5, 3.0, faces=faces, contested=[
+        Explanation(0.6, (deviating("w"),)), Explanation(0.4, (deviating("e"),))])
+    east_moved = {"e": (0.06, 0.0, True), "w": (0.0, 0.0, True)}
+    scores = script.score(report, east_moved, DeviationConfig())
+    assert (scores["contest"], scores["contest_true"]) == (1, 2)
+    scores = script.score(report, {"e": (0.0, 0.0, True), "w": (0.0, 0.0, True)}, DeviationConfig())
+    assert scores["contest_true"] == 0  # neither wall is off: neither explanation is the truth
+    assert script.score(DeviationReport(0.02, 0.5, 3.0, faces=faces), east_moved, DeviationConfig())["contest"] == 0

@@ -27,6 +27,7 @@ the observations and the other faces decide: Baarda's externally studentised res
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
@@ -69,6 +70,10 @@ class ObservedPlane:
     bim_factor: tuple[np.ndarray, np.ndarray] | None = None
     extent_S: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     area_m2: float = 0.0
+    # the graph's keys (E, X_anchor, L) and its joint marginal over every landmark's, shared
+    # by all of one solve's planes: the covariance of two faces measured together (`widths`)
+    keys: tuple[int, int, int] | None = None
+    joint: Callable[[list[int]], np.ndarray] | None = field(default=None, repr=False, compare=False)
 
     def plane_S(self) -> np.ndarray:
         return plane_from_frame(self.plane_A, self.T_S_A)
@@ -155,6 +160,7 @@ class DeviationReport:
     faces: list[FaceReport] = field(default_factory=list)
     unplanned: list[UnplannedPlane] = field(default_factory=list)
     contested: list[Explanation] = field(default_factory=list)  # none, or two, the likelier first
+    widths: list = field(default_factory=list)  # `bimgraph.deviations.widths.Width`s
 
     def by_status(self, status: Status) -> list[FaceReport]:
         return [f for f in self.faces if f.status == status]
@@ -167,18 +173,19 @@ def plane_to_bim_residual(face: BimFace, plane: ObservedPlane, T_S_B: np.ndarray
     return e, np.hstack([H_E, H_a, H_L])
 
 
-def _without_own_factor(cov: np.ndarray, bim_factor) -> tuple[np.ndarray, np.ndarray] | None:
+def without_own_factor(cov: np.ndarray, bim_factor) -> tuple[np.ndarray, np.ndarray] | None:
     """Tangent-space shift of the mean, and covariance, of (E, X_a, L) once the face's own
-    factor is taken out; None if the factor was all that constrained its residual.
+    factor is taken out; None if the factor was all that constrained its residual. (Of any
+    variables and any factors on them, the factors' whitened rows `A` stacked.)
 
     In covariance form (Woodbury), so that a nearly fixed anchor (the gauge keyframe) costs no
-    precision: with the redundancy `R = I - A Sigma A^T` (3 x 3), `Sigma' = Sigma + Sigma A^T
+    precision: with the redundancy `R = I - A Sigma A^T`, `Sigma' = Sigma + Sigma A^T
     R^-1 A Sigma` and the shift is `Sigma A^T R^-1 e_w`."""
     if bim_factor is None:
         return np.zeros(JOINT_DIM), cov
     A, e_w = bim_factor
     SAt = cov @ A.T
-    R = np.eye(3) - A @ SAt
+    R = np.eye(len(A)) - A @ SAt
     R = 0.5 * (R + R.T)
     if np.linalg.eigvalsh(R)[0] <= _MIN_REDUNDANCY:
         return None
@@ -219,7 +226,7 @@ def deviation_from_residual(e: np.ndarray, cov_e: np.ndarray, face: BimFace, mea
 def face_deviation(face: BimFace, plane: ObservedPlane, T_S_B: np.ndarray) -> Deviation:
     """The face measured by the landmark, against the alignment the rest of the graph decides."""
     e, J = plane_to_bim_residual(face, plane, T_S_B)
-    loo = _without_own_factor(plane.cov, plane.bim_factor)
+    loo = without_own_factor(plane.cov, plane.bim_factor)
     if loo is None:
         return deviation_from_residual(e, J @ plane.cov @ J.T, face, measurable=False)
     delta, cov = loo

@@ -41,6 +41,8 @@ def observed_plane(joint: Callable[[list[int]], np.ndarray], values: gtsam.Value
         bim_factor=None if bim_factor is None else bim_factor_linearization(bim_factor, values),
         extent_S=np.zeros((0, 3)) if extent_S is None else np.asarray(extent_S, dtype=float).reshape(-1, 3),
         area_m2=float(area_m2),
+        keys=(key_E, key_anchor, key_plane),
+        joint=joint,
     )
 
 

@@ -1,7 +1,7 @@
 """deviations.json and deviations.csv: the deviation report on disk (schema in docs/formats.md,
 "Deviations"). The JSON is the reference and is validated on load; the CSV holds the same rows
-for spreadsheets, one per face, one per unplanned plane and one per face of each explanation
-of a contest."""
+for spreadsheets, one per face, one per unplanned plane, one per room width and one per face
+of each explanation of a contest."""
 
 from __future__ import annotations
 
@@ -18,13 +18,15 @@ from bimgraph.files import existing_file, read_json, write_atomic, write_json
 from bimgraph.validation import parse_model
 
 FORMAT = "bimgraph.deviations"
-VERSION = 2  # 2: `contested` (version 1 files, without it, load as ever)
+VERSION = 2  # 2: `contested`, `widths` (version 1 files, without them, load as ever)
 JSON_FILE = "deviations.json"
 CSV_FILE = "deviations.csv"
 
 Vec3 = tuple[float, float, float]
 FaceStatus = Literal["within_tolerance", "deviating", "not_enough_evidence", "possibly_not_built"]
 FACE_STATUSES: tuple[str, ...] = get_args(FaceStatus)
+WidthStatus = Literal["within_tolerance", "deviating", "not_enough_evidence"]
+WIDTH_STATUSES: tuple[str, ...] = get_args(WidthStatus)
 
 
 class FaceRecord(BaseModel):
@@ -80,6 +82,20 @@ class ExplanationRecord(BaseModel):
         return self
 
 
+class WidthRecord(BaseModel):
+    """A room's clear width between two of its wall faces facing each other (m)."""
+
+    model_config = ConfigDict(extra="forbid")
+    space_guid: str
+    space_name: str = ""
+    faces: tuple[str, str]
+    planned_m: float = Field(ge=0)
+    built_m: float
+    sigma_m: float = Field(ge=0)
+    n_keyframes: int = Field(ge=0)
+    status: WidthStatus
+
+
 class DeviationsFile(BaseModel):
     model_config = ConfigDict(extra="forbid")
     format: Literal["bimgraph.deviations"] = FORMAT
@@ -90,6 +106,7 @@ class DeviationsFile(BaseModel):
     faces: list[FaceRecord]
     unplanned: list[UnplannedRecord]
     contested: list[ExplanationRecord] = Field(default_factory=list, max_length=2)
+    widths: list[WidthRecord] = Field(default_factory=list)
 
     def counts(self) -> dict[str, int]:
         out: dict[str, int] = {}
@@ -120,13 +137,14 @@ def to_file(report: DeviationReport) -> DeviationsFile:
     ]
     contested = [ExplanationRecord(probability=e.probability, deviating=[_face_record(f) for f in e.deviating])
                  for e in report.contested]
+    widths = [WidthRecord(**vars(w)) for w in report.widths]
     return DeviationsFile(tolerance_m=report.tolerance_m, tilt_tolerance_deg=report.tilt_tolerance_deg,
-                          k_sigma=report.k_sigma, faces=faces, unplanned=unplanned, contested=contested)
+                          k_sigma=report.k_sigma, faces=faces, unplanned=unplanned, contested=contested, widths=widths)
 
 
 CSV_COLUMNS = ["status", "face_id", "wall_guid", "wall_name", "storey", "offset_m", "offset_sigma_m", "tilt_deg",
                "tilt_sigma_deg", "n_keyframes", "expected_keyframes", "landmark", "matched_by",
-               "area_m2", "centre_x", "centre_y", "centre_z", "probability"]
+               "area_m2", "centre_x", "centre_y", "centre_z", "probability", "room", "planned_m", "built_m"]
 
 
 def to_csv(data: DeviationsFile) -> str:
@@ -139,6 +157,10 @@ def to_csv(data: DeviationsFile) -> str:
         centre = u.centre or ("", "", "")
         writer.writerow({"status": "unplanned", "landmark": u.landmark, "n_keyframes": u.n_keyframes,
                          "area_m2": u.area_m2, "centre_x": centre[0], "centre_y": centre[1], "centre_z": centre[2]})
+    for w in data.widths:
+        writer.writerow({"status": f"width_{w.status}", "face_id": " ".join(w.faces), "room": w.space_name or w.space_guid,
+                         "offset_m": w.built_m - w.planned_m, "offset_sigma_m": w.sigma_m, "n_keyframes": w.n_keyframes,
+                         "planned_m": w.planned_m, "built_m": w.built_m})
     for explanation in data.contested:
         for f in explanation.deviating:
             writer.writerow({**{k: ("" if v is None else v) for k, v in f.model_dump().items()}, "status": "contested",

@@ -4,6 +4,7 @@ without ground truth (`run_summary`, printed by `bimgraph run`)."""
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ from bimgraph.backend.pipeline import initial_alignment, load_model, model_path,
 from bimgraph.backend.results import (ASSOCIATIONS, EXTRINSIC, METRICS, SUMMARY, TRAJECTORY_BIM, check_stamps,
                                       load_associations, load_extrinsic, load_summary)
 from bimgraph.config import Config
-from bimgraph.deviations.report import FACE_STATUSES, JSON_FILE as DEVIATIONS_JSON, load_deviations
+from bimgraph.deviations.report import FACE_STATUSES, JSON_FILE as DEVIATIONS_JSON, WIDTH_STATUSES, load_deviations
 from bimgraph.errors import FormatError, InputError
 from bimgraph.evaluation.baselines import estimate_extrinsics, matched_planes
 from bimgraph.evaluation.evaluate import Estimate, evaluate
@@ -143,6 +144,12 @@ def run_summary(out_dir: Path) -> list[tuple[str, str]]:
         rows += [("deviating", f"{f.wall_name or f.wall_guid} ({f.face_id}): offset {100 * f.offset_m:+.1f} ± "
                                f"{100 * f.offset_sigma_m:.1f} cm, tilt {f.tilt_deg:.2f} ± {f.tilt_sigma_deg:.2f} deg")
                  for f in deviations.faces if f.status == "deviating"]
+        if deviations.widths:
+            counts = Counter(w.status for w in deviations.widths)
+            rows.append(("room widths", ", ".join(f"{counts.get(k, 0)} {k.replace('_', ' ')}" for k in WIDTH_STATUSES)))
+        rows += [("width", f"{w.space_name or w.space_guid} between {w.faces[0]} and {w.faces[1]}: {w.built_m:.3f} ± "
+                           f"{w.sigma_m:.3f} m built, {w.planned_m:.3f} m planned ({100 * (w.built_m - w.planned_m):+.1f} cm)")
+                 for w in deviations.widths if w.status == "deviating"]
         for lead, explanation in zip(("either", "or"), deviations.contested):
             faces = "; ".join(f"{f.wall_name or f.wall_guid} ({f.face_id}) offset {100 * f.offset_m:+.1f} ± "
                               f"{100 * f.offset_sigma_m:.1f} cm" for f in explanation.deviating) or "no wall off beyond tolerance"

@@ -14,6 +14,7 @@ from bimgraph.backend.synthetic import make_scene
 from bimgraph.bim.planemap import Space, save_plane_map
 from bimgraph.config import BackendConfig, DeviationConfig
 from bimgraph.deviations.assess import assess
+from bimgraph.deviations.bcf import read_bcf_topics, write_bcf
 from bimgraph.deviations.estimate import without_own_factor
 from bimgraph.deviations.report import CSV_FILE, JSON_FILE, load_deviations, read_csv_rows, write_deviations
 from bimgraph.evaluation.runs import run_summary
@@ -78,6 +79,11 @@ def test_widths_are_written_and_printed(one_room, tmp_path):
     rows = [row for row in read_csv_rows(tmp_path / CSV_FILE) if row["status"].startswith("width_")]
     assert sorted(" ".join(sorted(row["face_id"].split())) for row in rows) == ["r00E r00W", "r00N r00S"]
     assert all(float(row["built_m"]) - float(row["planned_m"]) == pytest.approx(float(row["offset_m"])) for row in rows)
+    # its BCF topics: the contest's, and the deviating width's, selecting both walls
+    plan, _, _ = one_room
+    assert write_bcf(data, plan, tmp_path / "d.bcf", DeviationConfig()) == 2
+    titles = dict(read_bcf_topics(tmp_path / "d.bcf"))
+    assert sorted(titles["Room width off plan: Room 0"]) == ["w00E", "w00W"]
 
 
 def test_the_run_prints_the_deviating_width(tmp_path):

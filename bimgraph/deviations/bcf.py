@@ -1,7 +1,8 @@
 """The BIM Collaboration Format file: one topic per deviating wall face, naming the wall's IFC
 GlobalId and with a viewpoint from inside the room looking at the face, so that BIM tools
 (BIMcollab, Solibri, BlenderBIM, Revit plug-ins) open the issue on the right wall; and one
-topic naming the walls of a contest (one of them off plan, which one the data cannot tell)."""
+topic naming the walls of a contest (one of them off plan, which one the data cannot tell),
+and one per room width off plan, naming its two walls."""
 
 from __future__ import annotations
 
@@ -45,10 +46,19 @@ def _describe_contest(contested) -> str:
             "Either " + ", or ".join(one(e) for e in contested) + ". Measuring between them on site tells which.")
 
 
+def _describe_width(width, cfg: DeviationConfig) -> str:
+    change = width.built_m - width.planned_m
+    return (f"Room {width.space_name or width.space_guid} measures {width.built_m:.3f} +/- {width.sigma_m:.3f} m between "
+            f"wall faces {width.faces[0]} and {width.faces[1]}, planned {width.planned_m:.3f} m: "
+            f"{abs(change) * 100:.1f} cm {'wider' if change > 0 else 'narrower'} (tolerance +/-{cfg.tolerance_m * 100:.1f} cm). "
+            f"Seen in {width.n_keyframes} keyframes or more.")
+
+
 def write_bcf(deviations: DeviationsFile, plane_map: PlaneMap, path: Path, cfg: DeviationConfig,
               project_name: str = "bimgraph as-built deviations") -> int:
-    """Write the BCF 3.0 file; returns the number of topics: one per deviating face, and one
-    for a contest (walls of which one is off plan, which one the data cannot tell)."""
+    """Write the BCF 3.0 file; returns the number of topics: one per deviating face, one for a
+    contest (walls of which one is off plan, which one the data cannot tell), and one per room
+    width off plan (selecting both walls)."""
     faces = plane_map.index
     # viewpoints are in the IFC file's world frame, in metres: B's pose in it, if B is not it
     T_W_B = np.eye(4) if plane_map.T_W_B is None else pose_from_tum(plane_map.T_W_B)
@@ -74,6 +84,10 @@ def write_bcf(deviations: DeviationsFile, plane_map: PlaneMap, path: Path, cfg: 
         names = list(dict.fromkeys(f.wall_name or f.face_id for f in contested))
         add_topic(f"Which wall is off plan: {' or '.join(names)}", _describe_contest(deviations.contested),
                   contested[0].face_id, list(dict.fromkeys(f.wall_guid for f in contested)))
+    for width in (w for w in deviations.widths if w.status == "deviating"):
+        room = width.space_name or width.space_guid
+        add_topic(f"Room width off plan: {room}", _describe_width(width, cfg), width.faces[0],
+                  list(dict.fromkeys(plane_map.faces[faces[face]].wall_guid for face in width.faces)))
     path = Path(path)
     ensure_folder(path.parent)
     bcf.save(path)

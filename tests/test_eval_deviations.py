@@ -73,3 +73,18 @@ def test_the_contest_is_scored_by_the_explanation_that_is_the_truth(script):
     scores = script.score(report, {"e": (0.0, 0.0, True), "w": (0.0, 0.0, True)}, DeviationConfig())
     assert scores["contest_true"] == 0  # neither wall is off: neither explanation is the truth
     assert script.score(DeviationReport(0.02, 0.5, 3.0, faces=faces), east_moved, DeviationConfig())["contest"] == 0
+
+
+def test_widths_are_scored_against_the_truth(script):
+    from bimgraph.config import DeviationConfig
+    from bimgraph.deviations.estimate import DeviationReport
+    from bimgraph.deviations.widths import Width
+
+    report = DeviationReport(0.02, 0.5, 3.0, widths=[
+        Width("r", "", ("e", "w"), 5.06, 5.002, 0.004, 20, "deviating"),
+        Width("r", "", ("n", "s"), 4.0, 4.001, 0.005, 20, "within_tolerance")])
+    # the east face built 6 cm into the room: 6 cm narrower; the width measured 5.8
+    scores = script.score(report, {"e": (0.06, 0.0, True)}, DeviationConfig())
+    assert scores["widths"] == 2 and scores["widths_flagged"] == scores["widths_flagged_true"] == 1
+    assert scores["width_err_rms_mm"] == pytest.approx(np.sqrt((2.0**2 + 1.0**2) / 2), rel=1e-6)
+    assert script.score(report, {"e": (0.06, 0.0, False)}, DeviationConfig())["widths"] == 1  # (on a wall not built)

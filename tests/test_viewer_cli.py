@@ -18,7 +18,7 @@ os.environ.setdefault("RERUN_ANALYTICS", "0")
 
 from bimgraph.cli import app  # noqa: E402
 from bimgraph.config import ViewerConfig  # noqa: E402
-from bimgraph.deviations.report import JSON_FILE, DeviationsFile, ExplanationRecord, FaceRecord  # noqa: E402
+from bimgraph.deviations.report import JSON_FILE, DeviationsFile, ExplanationRecord, FaceRecord, WidthRecord  # noqa: E402
 from bimgraph.files import write_json  # noqa: E402
 from bimgraph.viewer import blueprint as bp  # noqa: E402
 from bimgraph.viewer.rerun_viewer import face_entity  # noqa: E402
@@ -99,6 +99,8 @@ def test_view_replays_the_outputs(online_run, seq_dir):
         faces=[face(1, "deviating"), face(2, "within_tolerance"), face(3, "not_enough_evidence")],
         contested=[ExplanationRecord(probability=0.6, deviating=[face(3, "deviating")]),
                    ExplanationRecord(probability=0.4, deviating=[face(1, "deviating")])],
+        widths=[WidthRecord(space_guid="room", faces=(faces[1], faces[2]), planned_m=4.0, built_m=3.94, sigma_m=0.004,
+                            n_keyframes=9, status="deviating")],
     ).model_dump(mode="json"))
     result = CliRunner().invoke(app, ["view", str(online_run), "--sequence", str(root), "--rrd", str(online_run / "view.rrd")])
     assert result.exit_code == 0, result.output
@@ -116,6 +118,7 @@ def test_view_replays_the_outputs(online_run, seq_dir):
     assert albedo(view, "/" + face_entity(faces[2]))[-1] != rgba_u32(colours.colour_deviating)
     # a face of a contest, deviating or not by which alignment holds; a deviating face stays so
     assert albedo(view, "/" + face_entity(faces[3]))[-1] == rgba_u32(colours.colour_contested)
+    assert counts["/" + bp.WIDTHS]["LineStrips3D:strips"] == 1  # the room width, across the room
     (online_run / JSON_FILE).unlink()
 
 

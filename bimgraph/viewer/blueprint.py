@@ -6,6 +6,7 @@ from __future__ import annotations
 WORLD = "world"
 FACES = "world/bim/faces"
 LABELS = "world/bim/labels"
+WIDTHS = "world/bim/widths"
 RAW = "world/trajectory/raw"
 CORRECTED = "world/trajectory/corrected"
 TRUTH = "world/trajectory/groundtruth"

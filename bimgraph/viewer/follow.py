@@ -61,7 +61,7 @@ class RerunListener(Listener):
 
 def mark_deviations(viewer: RerunViewer, status_by_face: Mapping[str, str]) -> int:
     """Colour the faces whose deviation status is "deviating" or "contested"
-    (`session.deviation_statuses`); returns how many. Call at the end of a run, before
+    (`session.face_statuses`); returns how many. Call at the end of a run, before
     `viewer.close()`."""
     states = {"deviating": FaceState.DEVIATING, "contested": FaceState.CONTESTED}
     marked = [(face, states[status]) for face, status in status_by_face.items() if status in states]

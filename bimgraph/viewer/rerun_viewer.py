@@ -168,6 +168,23 @@ class RerunViewer:
         self._log_now(bp.FINAL, self.rr.LineStrips3D([points], colors=[self.cfg.colour_final],
                                                      radii=self.cfg.trajectory_radius_m))
 
+    def widths(self, widths) -> None:
+        """The deviation report's room widths (`WidthRecord`s), once, at the last keyframe: a
+        line from each width's first face across the room to the other's plane, labelled with
+        the width as built and its change from plan, in the deviating colour where off plan."""
+        if not widths:
+            return
+        self.flush()
+        strips, labels, colours = [], [], []
+        for w in widths:
+            face = self.plane_map.faces[self.plane_map.index[w.faces[0]]]
+            start = np.asarray(face.centre, dtype=float)
+            strips.append([start, start + w.planned_m * np.asarray(face.normal)])
+            labels.append(f"{w.built_m:.3f} m ({100 * (w.built_m - w.planned_m):+.1f} cm)")
+            colours.append((self.cfg.colour_deviating if w.status == "deviating" else self.cfg.colour_associated)[:3])
+        self._log_now(bp.WIDTHS, self.rr.LineStrips3D(strips, labels=labels, colors=colours,
+                                                      radii=0.5 * self.cfg.trajectory_radius_m))
+
     def close(self):
         """Send everything and close the recording's sinks (an .rrd is complete only then)."""
         self.flush()

@@ -39,27 +39,30 @@ def open_viewer(seq_dir: Path, meta: SequenceMeta, plane_map: PlaneMap, T_B_S_in
                        T_B_C_truth=T_B_C_truth, T_B_S_truth=T_B_S_truth, config=cfg.viewer)
 
 
-def deviation_statuses(out_dir: Path) -> dict[str, str] | None:
-    """Each face's status in the run's deviation report ("contested" for a face of a contest
-    that is not deviating either way), None if it wrote none."""
+def deviation_report(out_dir: Path):
+    """The run's deviation report (`DeviationsFile`), None if it wrote none."""
     from bimgraph.deviations.report import JSON_FILE, load_deviations
 
     path = Path(out_dir) / JSON_FILE
-    if not path.is_file():
-        return None
-    report = load_deviations(path)
+    return load_deviations(path) if path.is_file() else None
+
+
+def face_statuses(report) -> dict[str, str]:
+    """Each face's status in a deviation report ("contested" for a face of a contest that is
+    not deviating either way)."""
     statuses = {f.face_id: f.status for f in report.faces}
     for explanation in report.contested:
         statuses.update({f.face_id: "contested" for f in explanation.deviating if statuses.get(f.face_id) != "deviating"})
     return statuses
 
 
-def finish(viewer: RerunViewer, out_dir: Path, statuses: dict[str, str] | None = None) -> None:
-    """Colour the deviating and contested faces if the run wrote a deviation report (`statuses`, if read
-    already), and close."""
-    statuses = deviation_statuses(out_dir) if statuses is None else statuses
-    if statuses is not None:
-        mark_deviations(viewer, statuses)
+def finish(viewer: RerunViewer, out_dir: Path, report=None) -> None:
+    """Colour the deviating and contested faces and draw the room widths if the run wrote a
+    deviation report (`report`, if read already), and close."""
+    report = report or deviation_report(out_dir)
+    if report is not None:
+        mark_deviations(viewer, face_statuses(report))
+        viewer.widths(report.widths)
     viewer.close()
 
 
@@ -95,7 +98,7 @@ def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | N
     check_stamps(str(out_dir), stamps, seq.keyframes, seq.root)
     keyframes = seq.keyframes[:len(stamps)]  # an interrupted online run covers a prefix
     faces = load_associations(out_dir / ASSOCIATIONS).face_of_observation()
-    statuses = deviation_statuses(out_dir)  # (every file read before the recording is written)
+    report = deviation_report(out_dir)  # (every file read before the recording is written)
 
     viewer = open_viewer(seq.root, seq.meta, plane_map, initial_alignment(seq.meta, cfg).T_B_S, cfg, rrd, spawn)
     for kf, T_B_C_k, T_S_C_k in zip(keyframes, T_B_C, T_S_C):
@@ -103,7 +106,7 @@ def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | N
         viewer.keyframe(kf.index, kf.stamp, T_S_C=kf.pose, T_B_C=T_B_C_k, T_B_S=T_B_C_k @ inverse(T_S_C_k),
                         planes=kf.planes, plane_faces=[faces.get((kf.index, i)) for i in range(len(kf.planes))],
                         depth=depth)
-    finish(viewer, out_dir, statuses)
+    finish(viewer, out_dir, report)
     return len(keyframes), len(seq.keyframes)
 
 

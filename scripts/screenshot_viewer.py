@@ -12,6 +12,7 @@ Needs a graphics stack: a GPU, or Mesa's software Vulkan (Debian/Ubuntu:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import signal
 import socket
@@ -61,8 +62,10 @@ def screenshot(rrd: Path, png: Path, width: int = 1600, height: int = 900, settl
         png.parent.mkdir(parents=True, exist_ok=True)
         png.write_bytes(viewer.take_screenshot())
     finally:
-        # the `rerun` entry point runs the viewer binary as a child: end the whole group
-        os.killpg(process.pid, signal.SIGTERM)
+        # the `rerun` entry point runs the viewer binary as a child: end the whole group (gone
+        # already where the viewer could not start)
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGTERM)
         process.wait(timeout=10)
 
 
@@ -86,7 +89,10 @@ def main():
     parser.add_argument("--renderer", default="vulkan", help="graphics backend of the viewer (vulkan or gl)")
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.split("x"))
-    screenshot(args.rrd, args.png, width, height, args.settle, args.renderer)
+    try:
+        screenshot(args.rrd, args.png, width, height, args.settle, args.renderer)
+    except RuntimeError as err:
+        sys.exit(f"error: {err}")
     print(f"{args.png}: screenshot of {args.rrd}")
 
 

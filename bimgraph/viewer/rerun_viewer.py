@@ -170,8 +170,8 @@ class RerunViewer:
 
     def widths(self, widths) -> None:
         """The deviation report's room widths (`WidthRecord`s), once, at the last keyframe: a
-        line from each width's first face across the room to the other's plane, labelled with
-        the width as built and its change from plan, in the deviating colour where off plan."""
+        line from each width's first face across the room to the other's plane; where off plan
+        in the deviating colour and labelled with the width as built and its change from plan."""
         if not widths:
             return
         self.flush()
@@ -180,8 +180,9 @@ class RerunViewer:
             face = self.plane_map.faces[self.plane_map.index[w.faces[0]]]
             start = np.asarray(face.centre, dtype=float)
             strips.append([start, start + w.planned_m * np.asarray(face.normal)])
-            labels.append(f"{w.built_m:.3f} m ({100 * (w.built_m - w.planned_m):+.1f} cm)")
-            colours.append((self.cfg.colour_deviating if w.status == "deviating" else self.cfg.colour_associated)[:3])
+            off = w.status == "deviating"  # (labelled only then: widths across one room cross at its middle)
+            labels.append(f"{w.built_m:.3f} m ({100 * (w.built_m - w.planned_m):+.1f} cm)" if off else "")
+            colours.append((self.cfg.colour_deviating if off else self.cfg.colour_associated)[:3])
         self._log_now(bp.WIDTHS, self.rr.LineStrips3D(strips, labels=labels, colors=colours,
                                                       radii=0.5 * self.cfg.trajectory_radius_m))
 

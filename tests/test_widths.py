@@ -93,3 +93,18 @@ def test_the_run_prints_the_deviating_width(tmp_path):
     rows = dict((label, text) for label, text in run_summary(tmp_path / "out") if label in ("room widths", "width"))
     assert "1 deviating" in rows["room widths"]
     assert "Room 0 between r00" in rows["width"] and "planned (-" in rows["width"]
+
+
+def test_the_two_sides_of_a_stub_wall_are_no_width():
+    """Both sides of a 20 cm wall standing in the room face away from each other: no room
+    lies between them (nor between the arms of a U-shaped room across its notch)."""
+    from bimgraph.bim.planemap import BimFace
+    from bimgraph.deviations.widths import _facing
+
+    def face(x, normal):
+        return BimFace(id=f"f{x}", wall_guid="w", normal=(normal, 0.0, 0.0), offset=-normal * x, space=Space(guid="r"),
+                       polygon=[(x, 0.0, 0.0), (x, 2.0, 0.0), (x, 2.0, 2.5), (x, 0.0, 2.5)])
+
+    cfg = DeviationConfig()
+    assert _facing(face(0.0, 1.0), face(4.0, -1.0), cfg)  # across the room
+    assert not _facing(face(2.1, 1.0), face(1.9, -1.0), cfg)  # back to back

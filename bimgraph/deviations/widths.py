@@ -54,11 +54,19 @@ class Width:
 
 def _facing(a: BimFace, b: BimFace, cfg: DeviationConfig) -> bool:
     """Whether `b` faces `a` across the room: their normals opposite within `width_max_angle_deg`
-    and their extents along the walls overlapping by `width_min_overlap_m`."""
-    n = np.asarray(a.normal, dtype=float)
-    if normal_angle_deg(n, -np.asarray(b.normal, dtype=float)) > cfg.width_max_angle_deg:
+    and horizontal, each in front of the other (not the two sides of a stub wall standing in
+    the room, nor the arms of a U-shaped one across its notch), and their extents along the
+    walls overlapping by `width_min_overlap_m`."""
+    n_a, n_b = np.asarray(a.normal, dtype=float), np.asarray(b.normal, dtype=float)
+    if normal_angle_deg(n_a, -n_b) > cfg.width_max_angle_deg:
         return False
-    along = np.cross([0.0, 0.0, 1.0], n)
+    between = np.asarray(b.centre) - np.asarray(a.centre)
+    if between @ n_a <= 0 or between @ n_b >= 0:
+        return False
+    along = np.cross([0.0, 0.0, 1.0], n_a)
+    if np.linalg.norm(along) < 0.9:  # (a sloping face, more than 25 degrees off vertical)
+        return False
+    along /= np.linalg.norm(along)
     span_a, span_b = np.asarray(a.polygon) @ along, np.asarray(b.polygon) @ along
     return min(span_a.max(), span_b.max()) - max(span_a.min(), span_b.min()) >= cfg.width_min_overlap_m
 
@@ -101,9 +109,12 @@ def width(a: BimFace, b: BimFace, plane_a: ObservedPlane, plane_b: ObservedPlane
         y, H = deviation_terms(e + J @ shift, face)
         change -= y[0]  # (an offset into the room narrows it)
         gradient -= H[0] @ J
-    planned = 0.5 * (abs(float(point_plane_distance(np.asarray(b.centre), a.plane)))
-                     + abs(float(point_plane_distance(np.asarray(a.centre), b.plane))))
-    return planned, planned + float(change), float(np.sqrt(max(gradient @ cov @ gradient, 0.0)))
+    variance = float(gradient @ cov @ gradient)
+    if not variance > 0:  # (the two factors were all that placed it: rounding left nothing)
+        return None
+    planned = 0.5 * (float(point_plane_distance(np.asarray(b.centre), a.plane))
+                     + float(point_plane_distance(np.asarray(a.centre), b.plane)))
+    return planned, planned + float(change), float(np.sqrt(variance))
 
 
 def room_widths(faces: Sequence[BimFace], measured: Sequence[FaceReport], planes: Mapping[int, ObservedPlane],

@@ -172,12 +172,14 @@ class RerunViewer:
         """The deviation report's room widths (`WidthRecord`s), once, at the last keyframe: a
         line from each width's first face across the room to the other's plane; where off plan
         in the deviating colour and labelled with the width as built and its change from plan."""
+        index = self.plane_map.index
+        widths = [w for w in widths if w.faces[0] in index]  # (`bimgraph view --bim` another model)
         if not widths:
             return
         self.flush()
         strips, labels, colours = [], [], []
         for w in widths:
-            face = self.plane_map.faces[self.plane_map.index[w.faces[0]]]
+            face = self.plane_map.faces[index[w.faces[0]]]
             start = np.asarray(face.centre, dtype=float)
             strips.append([start, start + w.planned_m * np.asarray(face.normal)])
             off = w.status == "deviating"  # (labelled only then: widths across one room cross at its middle)

@@ -89,6 +89,7 @@ class FaceIndex:
         self.outline = np.array([Polygon(self.to_2d(self.rep[self.group[i]], np.asarray(f.polygon))) for i, f in enumerate(self.faces)],
                                 dtype=object)
         self.outline_bounds = shapely.bounds(self.outline).reshape(-1, 4)
+        self.member_outlines = [self.outline[m] for m in self.members]  # (asked per observation and keyframe)
         self.group_outline = [shapely.union_all([self.outline[i].convex_hull for i in m]) for m in self.members]
         for poly in self.group_outline:
             shapely.prepare(poly)
@@ -118,7 +119,8 @@ class FaceIndex:
             box_distance = np.linalg.norm(np.maximum(np.maximum(lo - uv, uv - hi), 0.0), axis=1)
             bound = shapely.distance(self.outline[members[np.argmin(box_distance)]], p)
             members = members[box_distance <= bound + 1e-9]
-        return self.ids[members[np.argmin(shapely.distance(self.outline[members], p))]]
+            return self.ids[members[np.argmin(shapely.distance(self.outline[members], p))]]
+        return self.ids[members[np.argmin(shapely.distance(self.member_outlines[group], p))]]
 
     def observation_faces(self, face: str | None, centres_B: list[np.ndarray | None]) -> list[str | None]:
         """The face behind each observation of a landmark matched to `face` (its group)."""

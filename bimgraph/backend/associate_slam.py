@@ -91,12 +91,13 @@ def same_plane_d2(plane_A1: np.ndarray, T_S_A1: np.ndarray, plane_A2: np.ndarray
     return float(e @ np.linalg.solve(S, e))
 
 
-def extent_gap(obs: Observation, T_A_C: np.ndarray, lm) -> float:
+def extent_gap(obs: Observation, T_A_C: np.ndarray, lm, basis_A: np.ndarray) -> float:
     """Distance on the landmark's plane between the observed polygon and the landmark's
-    extent (its hull as last grown); 0 when either is unknown."""
+    extent (its hull as last grown); 0 when either is unknown. `basis_A` is its plane's
+    `plane_basis` (`LandmarkTable.bases_A`)."""
     if len(obs.points_C) == 0 or lm.hull_A is None:
         return 0.0
-    seen = hull_2d(to_plane_2d(transform_points(T_A_C, obs.points_C), lm.plane_A))
+    seen = hull_2d(to_plane_2d(transform_points(T_A_C, obs.points_C), lm.plane_A, basis_A))
     return float(seen.distance(lm.hull_A))
 
 
@@ -117,8 +118,10 @@ class SlamAssociator:
         if with_points:
             centres_S = transform_points(T_S_C, np.stack([observations[row].centre_C for row in with_points]))
             radii = np.array([observations[row].radius for row in with_points])
-            # bounding spheres: a lower bound of the exact extent gap
-            gap = np.linalg.norm(landmarks.centres_S[None] - centres_S[:, None], axis=2) - landmarks.radii - radii[:, None]
+            # bounding spheres: a lower bound of the exact extent gap (the distance spelled out:
+            # np.linalg.norm's checks cost as much as the sum)
+            offsets = landmarks.centres_S[None] - centres_S[:, None]
+            gap = np.sqrt((offsets * offsets).sum(axis=2)) - landmarks.radii - radii[:, None]
             ok[with_points] &= ~(gap > self.cfg.max_extent_gap_m)
         return ok
 
@@ -136,7 +139,7 @@ class SlamAssociator:
         gated = d2 <= self.gate
         scores: dict[tuple[int, int], float] = {}
         for i, j, score in zip(pairs[0][gated], pairs[1][gated], d2[gated]):
-            if extent_gap(observations[i], landmarks.T_A_S[j] @ T_S_C, landmarks[j]) <= self.cfg.max_extent_gap_m:
+            if extent_gap(observations[i], landmarks.T_A_S[j] @ T_S_C, landmarks[j], landmarks.bases_A[j]) <= self.cfg.max_extent_gap_m:
                 scores[(int(i), int(j))] = float(score)
         if not scores:
             return out

@@ -57,7 +57,8 @@ def singular_as_error():
 
 
 def pose3(T: np.ndarray) -> gtsam.Pose3:
-    return gtsam.Pose3(np.asarray(T, dtype=float))
+    # (by keyword: pybind then skips the overloads it would try to convert the matrix to first)
+    return gtsam.Pose3(mat=np.asarray(T, dtype=float))
 
 
 def sigmas_cov(rot_rad: float, trans_m: float) -> np.ndarray:
@@ -143,6 +144,8 @@ class FactorBuilder:
         self.default_plane_cov = plane_cov(np.radians(n.plane_normal_deg), n.plane_offset_m)
         self._plane_cov_floor = np.diag(plane_cov(np.radians(n.plane_min_normal_deg), n.plane_min_offset_m))
         self.gravity_noise = gtsam.noiseModel.Isotropic.Sigma(2, np.radians(n.gravity_deg))
+        self._up = np.array([0.0, 0.0, 1.0])
+        self._up_S = gtsam.Unit3(self._up)  # (a factor per keyframe: each copies it)
         # each face's tolerance covariance, by (plane, centre, tolerance): the robust alignment
         # makes thousands of plane-to-BIM factors a judgement, of a few dozen faces (on the
         # synthetic world's largest, 0.42 of its 1.6 s went to making these again)
@@ -157,8 +160,8 @@ class FactorBuilder:
     def gravity(self, k: int, T_S_C: np.ndarray) -> gtsam.NonlinearFactor:
         """Keyframe k's up direction as the gravity-aligned front-end reports it: its tilt does
         not drift, only its heading does."""
-        up_C = np.asarray(T_S_C)[:3, :3].T @ np.array([0.0, 0.0, 1.0])
-        return gtsam.AttitudeFactorPose3(X(k), gtsam.Unit3(np.array([0.0, 0.0, 1.0])), self.gravity_noise, gtsam.Unit3(up_C))
+        up_C = np.asarray(T_S_C)[:3, :3].T @ self._up
+        return gtsam.AttitudeFactorPose3(X(k), self._up_S, self.gravity_noise, gtsam.Unit3(up_C))
 
     def odometry(self, k_prev: int, k: int, T_prev_k: np.ndarray, cov: np.ndarray | None) -> gtsam.NonlinearFactor:
         noise = gtsam.noiseModel.Gaussian.Covariance(self.default_odometry_cov if cov is None else np.asarray(cov))

@@ -4,6 +4,7 @@ match to a BIM face. The graph holds the estimates; this is the cache associatio
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import gtsam
@@ -21,13 +22,15 @@ def plane_basis(n: np.ndarray) -> np.ndarray:
     return gtsam.Unit3(np.asarray(n, dtype=float)).basis()
 
 
-def to_plane_2d(points: np.ndarray, plane: np.ndarray) -> np.ndarray:
-    """Points (N x 3) projected into the plane's own 2-D frame (origin at its foot point)."""
-    return (points + plane[3] * plane[:3]) @ plane_basis(plane[:3])
+def to_plane_2d(points: np.ndarray, plane: np.ndarray, basis: np.ndarray) -> np.ndarray:
+    """Points (N x 3) projected into the plane's own 2-D frame (origin at its foot point);
+    `basis` is the plane's `plane_basis`, which callers keep (gtsam's Unit3 costs more than
+    the projection)."""
+    return (points + plane[3] * plane[:3]) @ basis
 
 
-def from_plane_2d(uv: np.ndarray, plane: np.ndarray) -> np.ndarray:
-    return -plane[3] * plane[:3] + uv @ plane_basis(plane[:3]).T
+def from_plane_2d(uv: np.ndarray, plane: np.ndarray, basis: np.ndarray) -> np.ndarray:
+    return -plane[3] * plane[:3] + uv @ basis.T
 
 
 def hull_2d(uv: np.ndarray):
@@ -45,7 +48,7 @@ def centroid(points: np.ndarray) -> np.ndarray:
 def bounding_sphere(points: np.ndarray) -> tuple[np.ndarray, float]:
     """The centroid of points (N x 3, N > 0) and the radius about it that holds them all."""
     centre = centroid(points)
-    return centre, float(np.sqrt(((points - centre) ** 2).sum(axis=1).max()))
+    return centre, math.sqrt(((points - centre) ** 2).sum(axis=1).max())
 
 
 def transform_points(T_A_B: np.ndarray, points_B: np.ndarray) -> np.ndarray:
@@ -118,7 +121,8 @@ class Landmark:
             if area is not None:
                 self.area = max(self.area, area)
             return
-        uv = to_plane_2d(np.vstack([self.extent_A, points_A]), self.plane_A)
+        basis = plane_basis(self.plane_A[:3])
+        uv = to_plane_2d(np.vstack([self.extent_A, points_A]), self.plane_A, basis)
         hull = hull_2d(uv)
         # (a hull polygon has no holes: its coordinates are its exterior ring, closed)
         if isinstance(hull, Polygon):
@@ -129,7 +133,7 @@ class Landmark:
         else:
             coords = shapely.get_coordinates(hull)
             self.area = max(self.area, area or 0.0)
-        self.extent_A = from_plane_2d(coords, self.plane_A)
+        self.extent_A = from_plane_2d(coords, self.plane_A, basis)
         self.hull_A = hull
         # its bounding sphere, which association moves into S with every new estimate
         self.sphere_A, self.radius = bounding_sphere(self.extent_A)

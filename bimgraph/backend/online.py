@@ -88,6 +88,7 @@ class Backend:
         self.odometry = OdometryModel(self.build)  # the front-end's drift, taken out as found
         self._keyframes: list[Keyframe] = []  # so far, for the drift's fit
         self._count = 0
+        self._due: dict[int, bool] = {}  # observation count -> `covariance_due` (numpy's log2 per landmark and keyframe costs)
         self.matches = OnlineBimAssociation(self.faces, cfg, self.graph, self.landmarks, self.listener,
                                             self.extrinsic_covariance, self.slam.gate, self._observe if merge else None)
         self.judge = OnlineJudgement(self.faces, self.build, self.landmarks, cfg)
@@ -174,7 +175,7 @@ class Backend:
         if lm.face is None or centre_A is None or not self.faces.has_sections(lm.face):
             return lm.face
         centre_B = transform_points(T_B_S @ lm.T_S_A, centre_A[None])[0]
-        return self.faces.observation_faces(lm.face, [centre_B])[0]
+        return self.faces.member_at(self.faces.group[self.faces.row[lm.face]], centre_B)
 
     def resolve_faces(self, T_B_S: np.ndarray) -> None:
         """Give every observation of every matched landmark its face, with the current estimate."""
@@ -297,7 +298,10 @@ class Backend:
         return [L(j) for j in js] + [X(self.landmarks[j].anchor) for j in js]
 
     def _covariance_due(self, j: int) -> bool:
-        return covariance_due(len(self.landmarks[j].observations), self.cfg.isam2)
+        n = len(self.landmarks[j].observations)
+        if (due := self._due.get(n)) is None:
+            due = self._due[n] = covariance_due(n, self.cfg.isam2)
+        return due
 
     def _refresh(self, values: gtsam.Values, estimates, covariances) -> None:
         """Copy landmark estimates (and the marginals of `covariances`) from iSAM2 to the cache."""

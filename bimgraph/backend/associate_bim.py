@@ -106,7 +106,7 @@ class FaceIndex:
 
     def member_at(self, group: int, point_B: np.ndarray) -> str:
         """The face of the group nearest to a point on it."""
-        members = self.members[group]
+        members, outlines = self.members[group], self.member_outlines[group]
         if len(members) == 1:
             return self.ids[members[0]]
         uv = self.to_2d(self.rep[group], point_B[None])[0]
@@ -117,10 +117,9 @@ class FaceIndex:
             # has hundreds; for a few, the test costs more than it saves)
             lo, hi = self.outline_bounds[members, :2], self.outline_bounds[members, 2:]
             box_distance = np.linalg.norm(np.maximum(np.maximum(lo - uv, uv - hi), 0.0), axis=1)
-            bound = shapely.distance(self.outline[members[np.argmin(box_distance)]], p)
-            members = members[box_distance <= bound + 1e-9]
-            return self.ids[members[np.argmin(shapely.distance(self.outline[members], p))]]
-        return self.ids[members[np.argmin(shapely.distance(self.member_outlines[group], p))]]
+            near = box_distance <= shapely.distance(outlines[np.argmin(box_distance)], p) + 1e-9
+            members, outlines = members[near], outlines[near]
+        return self.ids[members[np.argmin(shapely.distance(outlines, p))]]
 
     def observation_faces(self, face: str | None, centres_B: list[np.ndarray | None]) -> list[str | None]:
         """The face behind each observation of a landmark matched to `face` (its group)."""

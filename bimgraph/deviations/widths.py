@@ -32,8 +32,9 @@ from bimgraph.deviations.estimate import (
 )
 from bimgraph.geometry import normal_angle_deg, point_plane_distance
 
-# tangent widths of a plane's keys (E, X_anchor, L)
+# tangent widths of a plane's keys (E, X_anchor, L), and where each starts in its 15 columns
 _KEY_DIMS = (6, 6, 3)
+_KEY_STARTS = np.concatenate([[0], np.cumsum(_KEY_DIMS)])
 
 
 @dataclass(frozen=True)
@@ -74,8 +75,7 @@ def _facing(a: BimFace, b: BimFace, cfg: DeviationConfig) -> bool:
 def _scatter(block: np.ndarray, keys: tuple[int, int, int], columns: Mapping[int, slice], dim: int) -> np.ndarray:
     """A matrix over one plane's (E, X_anchor, L) as one over the pair's joint variables."""
     out = np.zeros((len(block), dim))
-    starts = np.concatenate([[0], np.cumsum(_KEY_DIMS)])
-    for key, a, b in zip(keys, starts, starts[1:]):
+    for key, a, b in zip(keys, _KEY_STARTS, _KEY_STARTS[1:]):
         out[:, columns[key]] += block[:, a:b]
     return out
 

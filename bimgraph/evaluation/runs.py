@@ -145,8 +145,8 @@ def run_summary(out_dir: Path) -> list[tuple[str, str]]:
                                f"{100 * f.offset_sigma_m:.1f} cm, tilt {f.tilt_deg:.2f} ± {f.tilt_sigma_deg:.2f} deg")
                  for f in deviations.faces if f.status == "deviating"]
         if deviations.widths:
-            counts = Counter(w.status for w in deviations.widths)
-            rows.append(("room widths", ", ".join(f"{counts.get(k, 0)} {k.replace('_', ' ')}" for k in WIDTH_STATUSES)))
+            width_counts = Counter(w.status for w in deviations.widths)
+            rows.append(("room widths", ", ".join(f"{width_counts.get(k, 0)} {k.replace('_', ' ')}" for k in WIDTH_STATUSES)))
         rows += [("width", f"{w.space_name or w.space_guid} between {w.faces[0]} and {w.faces[1]}: {w.built_m:.3f} ± "
                            f"{w.sigma_m:.3f} m built, {w.planned_m:.3f} m planned ({100 * (w.built_m - w.planned_m):+.1f} cm)")
                  for w in deviations.widths if w.status == "deviating"]

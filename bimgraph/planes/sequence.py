@@ -10,9 +10,8 @@ import numpy as np
 
 from bimgraph.config import Config, DepthNoiseConfig, ExtractionConfig
 from bimgraph.errors import BimgraphError, ConfigError, InputError
-from bimgraph.files import read_json
 from bimgraph.planes.extractor import DetectedPlane, Extraction, PlaneExtractor
-from bimgraph.sequence.format import META_FILE, Camera, Keyframe, PlaneObservation, Sequence, SequenceMeta, load_sequence, save_sequence
+from bimgraph.sequence.format import META_FILE, Camera, Keyframe, PlaneObservation, Sequence, load_meta, load_sequence, save_sequence
 from bimgraph.sequence.tum_rgbd import DEPTH_LIST, load_camera, load_tum_rgbd, read_depth_png, read_image_list
 from bimgraph.validation import parse_model
 
@@ -137,11 +136,8 @@ def open_input(folder: Path, trajectory: Path | None = None, intrinsics: Path | 
             # run again (a new trajectory, other settings): what the user added by hand, the
             # model and the initial alignment, stays; the camera is the one given now (the old
             # one is not even read: one the checks refuse must not block its replacement)
-            earlier = read_json(folder / META_FILE)
-            if isinstance(earlier, dict):
-                earlier.pop("camera", None)
-            meta = parse_model(SequenceMeta, earlier, str(folder / META_FILE))
-            seq.meta = meta.model_copy(update={"camera": camera, "sensor": seq.meta.sensor})
+            earlier = load_meta(folder, ignore=("camera",))
+            seq.meta = earlier.model_copy(update={"camera": camera, "sensor": seq.meta.sensor})
         return seq, camera
     if not (folder / META_FILE).is_file():
         raise InputError(f"{folder}: no {META_FILE}; for a TUM RGB-D folder give --trajectory")

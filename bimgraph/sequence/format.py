@@ -194,9 +194,13 @@ class Sequence(BaseModel):
         return p if p.is_absolute() else self.root / p
 
 
-def load_meta(root: Path) -> SequenceMeta:
+def load_meta(root: Path, ignore: tuple[str, ...] = ()) -> SequenceMeta:
+    """sequence.json, its fields `ignore` left unread (unvalidated, at their defaults)."""
     path = Path(root) / META_FILE
-    return parse_model(SequenceMeta, read_json(path), str(path))
+    data = read_json(path)
+    if isinstance(data, dict):
+        data = {k: v for k, v in data.items() if k not in ignore}
+    return parse_model(SequenceMeta, data, str(path))
 
 
 def iter_keyframes(root: Path):

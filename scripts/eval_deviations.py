@@ -97,28 +97,29 @@ def score(data, truth, cfg: DeviationConfig) -> dict:
         "not_built_recall": sum(not truth[f.face_id][2] for f in not_built) / len(missing) if missing else 1.0,
         "unplanned": len(data.unplanned),
         **contest_score(data, gt_deviating),
-        **width_score(data, truth, cfg),
+        **distance_score(getattr(data, "widths", []), truth, cfg, -1.0, "width", "widths"),
+        **distance_score(getattr(data, "thicknesses", []), truth, cfg, 1.0, "thickness", "thicknesses"),
     }
 
 
-def width_score(data, truth, cfg: DeviationConfig) -> dict:
-    """The report's room widths against the truth (the change from plan: both faces' true
-    offsets at their centres, negated; a width on a wall not built is left out): how many, the
-    RMS of their errors (m) and of the errors over their sigmas, those flagged deviating and how
-    many truly are."""
+def distance_score(records, truth, cfg: DeviationConfig, sign: float, name: str, names: str) -> dict:
+    """The report's room widths (`sign` -1) or wall thicknesses (+1) against the truth (the
+    change from plan: both faces' true offsets at their centres, times `sign`; one on a wall not
+    built is left out): how many, the RMS of their errors (m) and of the errors over their
+    sigmas, those flagged deviating and how many truly are; keys `names`, `name`_err_rms_mm, ..."""
     rows = []
-    for w in getattr(data, "widths", []):
-        (off_a, _, built_a), (off_b, _, built_b) = (truth.get(face, (0.0, 0.0, True)) for face in w.faces)
+    for r in records:
+        (off_a, _, built_a), (off_b, _, built_b) = (truth.get(face, (0.0, 0.0, True)) for face in r.faces)
         if built_a and built_b:
-            rows.append((w.built_m - w.planned_m + off_a + off_b, w.sigma_m, w.status, abs(off_a + off_b) > cfg.tolerance_m))
+            rows.append((r.built_m - r.planned_m - sign * (off_a + off_b), r.sigma_m, r.status, abs(off_a + off_b) > cfg.tolerance_m))
     if not rows:
-        return {"widths": 0}
+        return {names: 0}
     errors = np.array([r[0] for r in rows])
     z = errors / np.maximum([r[1] for r in rows], 1e-12)
     flagged = [r for r in rows if r[2] == "deviating"]
-    return {"widths": len(rows), "width_err_rms_mm": float(np.sqrt(np.mean(errors**2)) * 1e3),
-            "width_z_rms": float(np.sqrt(np.mean(z**2))), "widths_flagged": len(flagged),
-            "widths_flagged_true": sum(r[3] for r in flagged)}
+    return {names: len(rows), f"{name}_err_rms_mm": float(np.sqrt(np.mean(errors**2)) * 1e3),
+            f"{name}_z_rms": float(np.sqrt(np.mean(z**2))), f"{names}_flagged": len(flagged),
+            f"{names}_flagged_true": sum(r[3] for r in flagged)}
 
 
 def contest_score(data, gt_deviating) -> dict:

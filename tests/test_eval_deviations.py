@@ -81,10 +81,26 @@ def test_widths_are_scored_against_the_truth(script):
     from bimgraph.deviations.widths import Width
 
     report = DeviationReport(0.02, 0.5, 3.0, widths=[
-        Width("r", "", ("e", "w"), 5.06, 5.002, 0.004, 20, "deviating"),
-        Width("r", "", ("n", "s"), 4.0, 4.001, 0.005, 20, "within_tolerance")])
+        Width(space_guid="r", space_name="", faces=("e", "w"), planned_m=5.06, built_m=5.002, sigma_m=0.004,
+              n_keyframes=20, status="deviating"),
+        Width(space_guid="r", space_name="", faces=("n", "s"), planned_m=4.0, built_m=4.001, sigma_m=0.005,
+              n_keyframes=20, status="within_tolerance")])
     # the east face built 6 cm into the room: 6 cm narrower; the width measured 5.8
     scores = script.score(report, {"e": (0.06, 0.0, True)}, DeviationConfig())
     assert scores["widths"] == 2 and scores["widths_flagged"] == scores["widths_flagged_true"] == 1
     assert scores["width_err_rms_mm"] == pytest.approx(np.sqrt((2.0**2 + 1.0**2) / 2), rel=1e-6)
     assert script.score(report, {"e": (0.06, 0.0, False)}, DeviationConfig())["widths"] == 1  # (on a wall not built)
+
+
+def test_thicknesses_are_scored_against_the_truth(script):
+    from bimgraph.config import DeviationConfig
+    from bimgraph.deviations.estimate import DeviationReport
+    from bimgraph.deviations.widths import Thickness
+
+    report = DeviationReport(0.02, 0.5, 3.0, thicknesses=[Thickness(
+        wall_guid="w", wall_name="", faces=("a", "b"), planned_m=0.2, built_m=0.257, sigma_m=0.005, n_keyframes=20,
+        status="deviating")])
+    # face a built 6 cm out of the wall: 6 cm thicker; measured 5.7
+    scores = script.score(report, {"a": (0.06, 0.0, True)}, DeviationConfig())
+    assert scores["thicknesses"] == 1 and scores["thicknesses_flagged"] == scores["thicknesses_flagged_true"] == 1
+    assert scores["thickness_err_rms_mm"] == pytest.approx(3.0, rel=1e-6) and scores["widths"] == 0

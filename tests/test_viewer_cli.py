@@ -18,11 +18,18 @@ os.environ.setdefault("RERUN_ANALYTICS", "0")
 
 from bimgraph.cli import app  # noqa: E402
 from bimgraph.config import ViewerConfig  # noqa: E402
-from bimgraph.deviations.report import JSON_FILE, DeviationsFile, ExplanationRecord, FaceRecord, WidthRecord  # noqa: E402
+from bimgraph.deviations.report import (  # noqa: E402
+    JSON_FILE,
+    DeviationsFile,
+    ExplanationRecord,
+    FaceRecord,
+    ThicknessRecord,
+    WidthRecord,
+)
 from bimgraph.files import write_json  # noqa: E402
 from bimgraph.viewer import blueprint as bp  # noqa: E402
 from bimgraph.viewer.rerun_viewer import face_entity  # noqa: E402
-from bimgraph.viewer.rrd import row_counts, verify  # noqa: E402
+from bimgraph.viewer.rrd import component_counts, row_counts, verify  # noqa: E402
 
 N_KEYFRAMES = 60
 
@@ -101,6 +108,10 @@ def test_view_replays_the_outputs(online_run, seq_dir):
                    ExplanationRecord(probability=0.4, deviating=[face(1, "deviating")])],
         widths=[WidthRecord(space_guid="room", faces=(faces[1], faces[2]), planned_m=4.0, built_m=3.94, sigma_m=0.004,
                             n_keyframes=9, status="deviating")],
+        thicknesses=[ThicknessRecord(wall_guid="w", faces=(faces[1], faces[3]), planned_m=0.2, built_m=0.26, sigma_m=0.005,
+                                     n_keyframes=9, status="deviating"),
+                     ThicknessRecord(wall_guid="w", faces=(faces[2], faces[3]), planned_m=0.2, built_m=0.2, sigma_m=0.005,
+                                     n_keyframes=9, status="within_tolerance")],
     ).model_dump(mode="json"))
     result = CliRunner().invoke(app, ["view", str(online_run), "--sequence", str(root), "--rrd", str(online_run / "view.rrd")])
     assert result.exit_code == 0, result.output
@@ -119,6 +130,9 @@ def test_view_replays_the_outputs(online_run, seq_dir):
     # a face of a contest, deviating or not by which alignment holds; a deviating face stays so
     assert albedo(view, "/" + face_entity(faces[3]))[-1] == rgba_u32(colours.colour_contested)
     assert counts["/" + bp.WIDTHS]["LineStrips3D:strips"] == 1  # the room width, across the room
+    # the wall thicknesses, through their walls, at once; the one off plan labelled
+    thicknesses = component_counts(view)["/" + bp.THICKNESSES]
+    assert thicknesses["LineStrips3D:strips"].instances == 2 and thicknesses["LineStrips3D:labels"].instances == 2
     (online_run / JSON_FILE).unlink()
 
 

@@ -1,7 +1,9 @@
-"""A room's clear width between two facing walls, as built (`bimgraph.deviations.widths`): one
-room whose east wall is built 6 cm into it. East and west wall alone place the walk along x,
-so which of the two is off the data cannot tell (tests/test_rival_alignment.py), but the room
-being 6 cm narrower than planned they tell to millimetres: the alignment cancels."""
+"""A room's clear width between two facing walls, and a wall's thickness between its two sides,
+as built (`bimgraph.deviations.widths`). One room whose east wall is built 6 cm into it: east
+and west wall alone place the walk along x, so which of the two is off the data cannot tell
+(tests/test_rival_alignment.py), but the room being 6 cm narrower than planned they tell to
+millimetres: the alignment cancels. Two rooms whose shared wall is built 5 cm thicker, into
+the second room."""
 
 import numpy as np
 import pytest
@@ -47,6 +49,44 @@ def test_the_room_is_measured_narrower_where_no_wall_can_be_blamed(one_room):
     assert across.sigma_m < 0.1 * min(sigmas["r00W"], sigmas["r00E"])
     along = widths[frozenset({"r00N", "r00S"})]
     assert along.built_m == pytest.approx(along.planned_m, abs=3 * along.sigma_m) and along.status != "deviating"
+
+
+def thicker_mid_wall(plane_map, by: float = 0.05):
+    """The 20 cm wall between two rooms one wall (`mid`) with a face on each side, built `by`
+    thicker, into the second room."""
+    plan = moved_plan(plane_map, {"r10W": by})
+    return plan.model_copy(update={"faces": [f.model_copy(update={"wall_guid": "mid", "wall_name": "Mid"})
+                                             if f.id in ("r00E", "r10W") else f for f in plan.faces]})
+
+
+@pytest.fixture(scope="module")
+def two_rooms():
+    scene = make_scene(160, rooms=(2, 1), seed=0, drift_rot_deg=0.01, drift_trans_m=0.001)
+    plan = thicker_mid_wall(scene.plane_map)
+    res = OfflineEstimator(plan, BackendConfig(), scene.initial).run(scene.keyframes)
+    return plan, assess(plan, res.observed_planes, inverse(res.T_B_S), DeviationConfig(), rival=res.rival_alignment)
+
+
+def test_the_wall_is_measured_thicker(two_rooms):
+    _, report = two_rooms
+    (thickness,) = report.thicknesses  # (the other walls have a face in one room only)
+    assert set(thickness.faces) == {"r00E", "r10W"} and thickness.wall_guid == "mid"
+    # planned where the plan draws the second room's face, 5 cm into the wall
+    assert thickness.planned_m == pytest.approx(0.15)
+    assert thickness.built_m - thickness.planned_m == pytest.approx(0.05, abs=3 * thickness.sigma_m)
+    assert thickness.sigma_m < 0.01 and thickness.status == "deviating"
+    assert not report.widths  # (no face knows its room)
+
+
+def test_thicknesses_are_written_and_printed(two_rooms, tmp_path):
+    plan, report = two_rooms
+    data = write_deviations(report, tmp_path)
+    assert load_deviations(tmp_path / JSON_FILE) == data and len(data.thicknesses) == 1
+    (row,) = [row for row in read_csv_rows(tmp_path / CSV_FILE) if row["status"].startswith("thickness_")]
+    assert row["status"] == "thickness_deviating" and row["wall_guid"] == "mid"
+    assert float(row["built_m"]) - float(row["planned_m"]) == pytest.approx(float(row["offset_m"]))
+    write_bcf(data, plan, tmp_path / "d.bcf", DeviationConfig())
+    assert dict(read_bcf_topics(tmp_path / "d.bcf"))["Wall thickness off plan: Mid"] == ["mid"]
 
 
 def test_faces_of_different_rooms_or_without_one_give_no_width(one_room):
@@ -95,11 +135,22 @@ def test_the_run_prints_the_deviating_width(tmp_path):
     assert "Room 0 between r00" in rows["width"] and "planned (-" in rows["width"]
 
 
-def test_the_two_sides_of_a_stub_wall_are_no_width():
+def test_the_run_prints_the_thicker_wall(tmp_path):
+    scene = write_sequence(tmp_path / "seq", 160, rooms=(2, 1), seed=0)
+    # (more than in `two_rooms`: this walk drifts more, and measures it to 1 cm)
+    save_plane_map(thicker_mid_wall(scene.plane_map, 0.08), tmp_path / "seq" / "planes.json")
+    run_pipeline(tmp_path / "seq", tmp_path / "out", mode="offline")
+    rows = dict((label, text) for label, text in run_summary(tmp_path / "out") if label in ("wall thicknesses", "thickness"))
+    assert rows["wall thicknesses"] == "0 within tolerance, 1 deviating, 0 not enough evidence"
+    assert rows["thickness"].startswith("Mid between r") and "cm planned (+" in rows["thickness"]
+
+
+def test_the_two_sides_of_a_stub_wall_are_no_width_but_a_thickness():
     """Both sides of a 20 cm wall standing in the room face away from each other: no room
-    lies between them (nor between the arms of a U-shaped room across its notch)."""
+    lies between them (nor between the arms of a U-shaped room across its notch), but the
+    wall's thickness does; two walls facing each other across the room have none."""
     from bimgraph.bim.planemap import BimFace
-    from bimgraph.deviations.widths import _facing
+    from bimgraph.deviations.widths import _facing, _two_sides
 
     def face(x, normal):
         return BimFace(id=f"f{x}", wall_guid="w", normal=(normal, 0.0, 0.0), offset=-normal * x, space=Space(guid="r"),
@@ -108,3 +159,6 @@ def test_the_two_sides_of_a_stub_wall_are_no_width():
     cfg = DeviationConfig()
     assert _facing(face(0.0, 1.0), face(4.0, -1.0), cfg)  # across the room
     assert not _facing(face(2.1, 1.0), face(1.9, -1.0), cfg)  # back to back
+    assert _two_sides(face(2.1, 1.0), face(1.9, -1.0), cfg)
+    assert not _two_sides(face(0.0, 1.0), face(4.0, -1.0), cfg)
+    assert not _two_sides(face(2.1, 1.0), face(1.9, -1.0).model_copy(update={"wall_guid": "v"}), cfg)  # two walls

@@ -33,8 +33,8 @@ class DeviationConfig(Section):
     min_expected_keyframes: int = Field(5, ge=1, description="a never-observed face in view in at least this many keyframes is possibly not built")
     online_refine: bool = Field(True, description="after an online run, measure the walls where the offline rounds take its graph (the drift and odometry noise estimated, the robust alignment, re-association), not at its own batch solution: the online graph keeps the given odometry noise, looser than the front-end's (offline estimates it at 0.2-0.4 of it on the simulated walks), so walls built off plan bend its trajectory and sound faces read centimetres off at several sigma (office 2: 8 of 31 faces beyond 3 sigma, none refined). Costs about the offline rounds: 6-12 s on a 600-keyframe walk")
     contest_min_probability: float = Field(0.01, ge=0, le=1, description="where the robust alignment's runner-up consensus is at least this likely and judges some face otherwise (deviating under one alignment, not under the other), the report lists both explanations, e.g. one of two parallel walls 5 cm off, which one the data cannot tell, with a BCF topic naming the walls")
-    width_max_angle_deg: float = Field(1.0, gt=0, description="a room's width is measured between two of its wall faces whose normals are opposite within this...")
-    width_min_overlap_m: float = Field(0.5, ge=0, description="...and whose extents along the walls overlap by this much (they face each other), each measured by a landmark of its own")
+    width_max_angle_deg: float = Field(1.0, gt=0, description="a room's width (a wall's thickness) is measured between two wall faces of that room (of that wall) whose normals are opposite within this...")
+    width_min_overlap_m: float = Field(0.5, ge=0, description="...and whose extents along the walls overlap by this much (they face each other; are back to back), each measured by a landmark of its own")
     bcf_author: str = Field("bimgraph", description="author of the BCF topics")
     bcf_view_distance_m: float = Field(3.0, gt=0, description="the BCF viewpoint looks at the face's centre from this far along its normal")
 

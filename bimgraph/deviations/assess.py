@@ -31,7 +31,7 @@ from bimgraph.deviations.estimate import (
     mixed,
 )
 from bimgraph.deviations.visibility import face_shape
-from bimgraph.deviations.widths import room_widths
+from bimgraph.deviations.widths import room_widths, wall_thicknesses
 from bimgraph.geometry import inverse, normal_angle_deg, plane_frame, plane_to_frame, point_plane_distance
 
 
@@ -173,7 +173,9 @@ def assess(plane_map: PlaneMap, planes: Sequence[ObservedPlane], T_S_B: np.ndarr
         for plane in near:
             measure(faces[face_id], plane, "proximity")
     report.faces = [measured[f.id][0] for f in plane_map.faces if f.id in measured]
-    report.widths = room_widths(plane_map.faces, report.faces, {p.landmark: p for p in planes}, T_S_B, cfg)
+    by_landmark = {p.landmark: p for p in planes}
+    report.widths = room_widths(plane_map.faces, report.faces, by_landmark, T_S_B, cfg)
+    report.thicknesses = wall_thicknesses(plane_map.faces, report.faces, by_landmark, T_S_B, cfg)
     if rival is not None and rival.probability >= cfg.contest_min_probability:
         report.contested = contest([(measured[f.id][0], *measured[f.id][2]) for f in plane_map.faces if f.id in measured],
                                    rival.probability, cfg)

@@ -2,7 +2,7 @@
 GlobalId and with a viewpoint from inside the room looking at the face, so that BIM tools
 (BIMcollab, Solibri, BlenderBIM, Revit plug-ins) open the issue on the right wall; and one
 topic naming the walls of a contest (one of them off plan, which one the data cannot tell),
-and one per room width off plan, naming its two walls."""
+one per room width off plan, naming its two walls, and one per wall thickness off plan."""
 
 from __future__ import annotations
 
@@ -46,19 +46,19 @@ def _describe_contest(contested) -> str:
             "Either " + ", or ".join(one(e) for e in contested) + ". Measuring between them on site tells which.")
 
 
-def _describe_width(width, cfg: DeviationConfig) -> str:
-    change = width.built_m - width.planned_m
-    return (f"Room {width.space_name or width.space_guid} measures {width.built_m:.3f} +/- {width.sigma_m:.3f} m between "
-            f"wall faces {width.faces[0]} and {width.faces[1]}, planned {width.planned_m:.3f} m: "
-            f"{abs(change) * 100:.1f} cm {'wider' if change > 0 else 'narrower'} (tolerance +/-{cfg.tolerance_m * 100:.1f} cm). "
-            f"Seen in {width.n_keyframes} keyframes or more.")
+def _describe_distance(subject: str, record, more: str, less: str, cfg: DeviationConfig) -> str:
+    """A room width's or a wall thickness's description: `subject` measures ..., `more` or `less`."""
+    change = record.built_m - record.planned_m
+    return (f"{subject} measures {record.built_m:.3f} +/- {record.sigma_m:.3f} m between wall faces {record.faces[0]} and "
+            f"{record.faces[1]}, planned {record.planned_m:.3f} m: {abs(change) * 100:.1f} cm {more if change > 0 else less} "
+            f"(tolerance +/-{cfg.tolerance_m * 100:.1f} cm). Seen in {record.n_keyframes} keyframes or more.")
 
 
 def write_bcf(deviations: DeviationsFile, plane_map: PlaneMap, path: Path, cfg: DeviationConfig,
               project_name: str = "bimgraph as-built deviations") -> int:
     """Write the BCF 3.0 file; returns the number of topics: one per deviating face, one for a
-    contest (walls of which one is off plan, which one the data cannot tell), and one per room
-    width off plan (selecting both walls)."""
+    contest (walls of which one is off plan, which one the data cannot tell), one per room
+    width off plan (selecting both walls) and one per wall thickness off plan."""
     faces = plane_map.index
     # viewpoints are in the IFC file's world frame, in metres: B's pose in it, if B is not it
     T_W_B = np.eye(4) if plane_map.T_W_B is None else pose_from_tum(plane_map.T_W_B)
@@ -86,8 +86,12 @@ def write_bcf(deviations: DeviationsFile, plane_map: PlaneMap, path: Path, cfg: 
                   contested[0].face_id, list(dict.fromkeys(f.wall_guid for f in contested)))
     for width in (w for w in deviations.widths if w.status == "deviating"):
         room = width.space_name or width.space_guid
-        add_topic(f"Room width off plan: {room}", _describe_width(width, cfg), width.faces[0],
-                  list(dict.fromkeys(plane_map.faces[faces[face]].wall_guid for face in width.faces)))
+        add_topic(f"Room width off plan: {room}", _describe_distance(f"Room {room}", width, "wider", "narrower", cfg),
+                  width.faces[0], list(dict.fromkeys(plane_map.faces[faces[face]].wall_guid for face in width.faces)))
+    for thickness in (t for t in deviations.thicknesses if t.status == "deviating"):
+        wall = thickness.wall_name or thickness.wall_guid
+        add_topic(f"Wall thickness off plan: {wall}", _describe_distance(f"Wall {wall}", thickness, "thicker", "thinner", cfg),
+                  thickness.faces[0], [thickness.wall_guid])
     path = Path(path)
     ensure_folder(path.parent)
     bcf.save(path)

@@ -161,6 +161,7 @@ class DeviationReport:
     unplanned: list[UnplannedPlane] = field(default_factory=list)
     contested: list[Explanation] = field(default_factory=list)  # none, or two, the likelier first
     widths: list = field(default_factory=list)  # `bimgraph.deviations.widths.Width`s
+    thicknesses: list = field(default_factory=list)  # `bimgraph.deviations.widths.Thickness`es
 
     def by_status(self, status: Status) -> list[FaceReport]:
         return [f for f in self.faces if f.status == status]

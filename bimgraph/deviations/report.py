@@ -1,7 +1,7 @@
 """deviations.json and deviations.csv: the deviation report on disk (schema in docs/formats.md,
 "Deviations"). The JSON is the reference and is validated on load; the CSV holds the same rows
-for spreadsheets, one per face, one per unplanned plane, one per room width and one per face
-of each explanation of a contest."""
+for spreadsheets, one per face, one per unplanned plane, one per room width, one per wall
+thickness and one per face of each explanation of a contest."""
 
 from __future__ import annotations
 
@@ -18,14 +18,14 @@ from bimgraph.files import existing_file, read_json, write_atomic, write_json
 from bimgraph.validation import parse_model
 
 FORMAT = "bimgraph.deviations"
-VERSION = 2  # 2: `contested`, `widths` (version 1 files, without them, load as ever)
+VERSION = 3  # 2: `contested`, `widths`; 3: `thicknesses` (earlier files, without them, load as ever)
 JSON_FILE = "deviations.json"
 CSV_FILE = "deviations.csv"
 
 Vec3 = tuple[float, float, float]
 FaceStatus = Literal["within_tolerance", "deviating", "not_enough_evidence", "possibly_not_built"]
 FACE_STATUSES: tuple[str, ...] = get_args(FaceStatus)
-WidthStatus = Literal["within_tolerance", "deviating", "not_enough_evidence"]
+WidthStatus = Literal["within_tolerance", "deviating", "not_enough_evidence"]  # (also a thickness's)
 WIDTH_STATUSES: tuple[str, ...] = get_args(WidthStatus)
 
 
@@ -82,12 +82,10 @@ class ExplanationRecord(BaseModel):
         return self
 
 
-class WidthRecord(BaseModel):
-    """A room's clear width between two of its wall faces facing each other (m)."""
+class DistanceRecord(BaseModel):
+    """The distance between two opposite faces (m): a room width's or a wall thickness's figures."""
 
     model_config = ConfigDict(extra="forbid")
-    space_guid: str
-    space_name: str = ""
     faces: tuple[str, str]
     planned_m: float = Field(ge=0)
     built_m: float
@@ -96,10 +94,24 @@ class WidthRecord(BaseModel):
     status: WidthStatus
 
 
+class WidthRecord(DistanceRecord):
+    """A room's clear width between two of its wall faces facing each other."""
+
+    space_guid: str
+    space_name: str = ""
+
+
+class ThicknessRecord(DistanceRecord):
+    """A wall's thickness between two faces on its two sides."""
+
+    wall_guid: str
+    wall_name: str = ""
+
+
 class DeviationsFile(BaseModel):
     model_config = ConfigDict(extra="forbid")
     format: Literal["bimgraph.deviations"] = FORMAT
-    version: Literal[1, 2] = VERSION
+    version: Literal[1, 2, 3] = VERSION
     tolerance_m: float = Field(gt=0)
     tilt_tolerance_deg: float = Field(gt=0)
     k_sigma: float = Field(ge=0)
@@ -107,6 +119,7 @@ class DeviationsFile(BaseModel):
     unplanned: list[UnplannedRecord]
     contested: list[ExplanationRecord] = Field(default_factory=list, max_length=2)
     widths: list[WidthRecord] = Field(default_factory=list)
+    thicknesses: list[ThicknessRecord] = Field(default_factory=list)
 
     def counts(self) -> dict[str, int]:
         out: dict[str, int] = {}
@@ -137,9 +150,10 @@ def to_file(report: DeviationReport) -> DeviationsFile:
     ]
     contested = [ExplanationRecord(probability=e.probability, deviating=[_face_record(f) for f in e.deviating])
                  for e in report.contested]
-    widths = [WidthRecord(**vars(w)) for w in report.widths]
     return DeviationsFile(tolerance_m=report.tolerance_m, tilt_tolerance_deg=report.tilt_tolerance_deg,
-                          k_sigma=report.k_sigma, faces=faces, unplanned=unplanned, contested=contested, widths=widths)
+                          k_sigma=report.k_sigma, faces=faces, unplanned=unplanned, contested=contested,
+                          widths=[WidthRecord(**vars(w)) for w in report.widths],
+                          thicknesses=[ThicknessRecord(**vars(t)) for t in report.thicknesses])
 
 
 CSV_COLUMNS = ["status", "face_id", "wall_guid", "wall_name", "storey", "offset_m", "offset_sigma_m", "tilt_deg",
@@ -161,6 +175,10 @@ def to_csv(data: DeviationsFile) -> str:
         writer.writerow({"status": f"width_{w.status}", "face_id": " ".join(w.faces), "room": w.space_name or w.space_guid,
                          "offset_m": w.built_m - w.planned_m, "offset_sigma_m": w.sigma_m, "n_keyframes": w.n_keyframes,
                          "planned_m": w.planned_m, "built_m": w.built_m})
+    for t in data.thicknesses:
+        writer.writerow({"status": f"thickness_{t.status}", "face_id": " ".join(t.faces), "wall_guid": t.wall_guid,
+                         "wall_name": t.wall_name, "offset_m": t.built_m - t.planned_m, "offset_sigma_m": t.sigma_m,
+                         "n_keyframes": t.n_keyframes, "planned_m": t.planned_m, "built_m": t.built_m})
     for explanation in data.contested:
         for f in explanation.deviating:
             writer.writerow({**{k: ("" if v is None else v) for k, v in f.model_dump().items()}, "status": "contested",

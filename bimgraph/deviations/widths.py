@@ -13,7 +13,7 @@ between them is measured as surely as anywhere: "the room is 6 cm narrower than 
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,14 +37,11 @@ _KEY_DIMS = (6, 6, 3)
 _KEY_STARTS = np.concatenate([[0], np.cumsum(_KEY_DIMS)])
 
 
-@dataclass(frozen=True)
-class Width:
-    """The clear width of room `space` (its IfcSpace GlobalId and name) between two of its
-    walls' faces, as planned and as built (m), with one sigma and a status against the
-    offset tolerance."""
+@dataclass(frozen=True, kw_only=True)
+class Distance:
+    """The distance between two opposite faces (`faces`), as planned and as built (m), with one
+    sigma, the fewer keyframes of the two faces, and a status against the offset tolerance."""
 
-    space_guid: str
-    space_name: str
     faces: tuple[str, str]
     planned_m: float
     built_m: float
@@ -53,16 +50,29 @@ class Width:
     status: Status
 
 
-def _facing(a: BimFace, b: BimFace, cfg: DeviationConfig) -> bool:
-    """Whether `b` faces `a` across the room: their normals opposite within `width_max_angle_deg`
-    and horizontal, each in front of the other (not the two sides of a stub wall standing in
-    the room, nor the arms of a U-shaped one across its notch), and their extents along the
-    walls overlapping by `width_min_overlap_m`."""
+@dataclass(frozen=True, kw_only=True)
+class Width(Distance):
+    """The clear width of room `space` (its IfcSpace GlobalId and name) between two of its
+    walls' faces."""
+
+    space_guid: str
+    space_name: str
+
+
+@dataclass(frozen=True, kw_only=True)
+class Thickness(Distance):
+    """A wall's thickness (its IfcWall GlobalId and name) between two faces on its two sides."""
+
+    wall_guid: str
+    wall_name: str
+
+
+def _opposite(a: BimFace, b: BimFace, cfg: DeviationConfig) -> bool:
+    """Whether faces `a` and `b` are parallel with opposite normals within
+    `width_max_angle_deg`, both near vertical, and their extents along them overlap by
+    `width_min_overlap_m`."""
     n_a, n_b = np.asarray(a.normal, dtype=float), np.asarray(b.normal, dtype=float)
     if normal_angle_deg(n_a, -n_b) > cfg.width_max_angle_deg:
-        return False
-    between = np.asarray(b.centre) - np.asarray(a.centre)
-    if between @ n_a <= 0 or between @ n_b >= 0:
         return False
     along = np.cross([0.0, 0.0, 1.0], n_a)
     if np.linalg.norm(along) < 0.9:  # (a sloping face, more than 25 degrees off vertical)
@@ -70,6 +80,28 @@ def _facing(a: BimFace, b: BimFace, cfg: DeviationConfig) -> bool:
     along /= np.linalg.norm(along)
     span_a, span_b = np.asarray(a.polygon) @ along, np.asarray(b.polygon) @ along
     return min(span_a.max(), span_b.max()) - max(span_a.min(), span_b.min()) >= cfg.width_min_overlap_m
+
+
+def _arrangement(a: BimFace, b: BimFace) -> int:
+    """+1 where each face's centre lies in front of the other face (where its normal points:
+    two walls of a room facing each other), -1 where each lies behind the other (the two sides
+    of a wall), else 0."""
+    between = np.asarray(b.centre) - np.asarray(a.centre)
+    in_front_of_a, in_front_of_b = between @ np.asarray(a.normal) > 0, between @ np.asarray(b.normal) < 0
+    return 0 if in_front_of_a != in_front_of_b else (1 if in_front_of_a else -1)
+
+
+def _facing(a: BimFace, b: BimFace, cfg: DeviationConfig) -> bool:
+    """Whether `b` faces `a` across the room: opposite (`_opposite`) and each in front of the
+    other (not the two sides of a stub wall standing in the room, nor the arms of a U-shaped
+    one across its notch)."""
+    return _arrangement(a, b) == 1 and _opposite(a, b, cfg)
+
+
+def _two_sides(a: BimFace, b: BimFace, cfg: DeviationConfig) -> bool:
+    """Whether `a` and `b` are the two sides of one wall: its faces, opposite (`_opposite`),
+    each behind the other."""
+    return a.wall_guid == b.wall_guid and _arrangement(a, b) == -1 and _opposite(a, b, cfg)
 
 
 def _scatter(block: np.ndarray, keys: tuple[int, int, int], columns: Mapping[int, slice], dim: int) -> np.ndarray:
@@ -80,10 +112,13 @@ def _scatter(block: np.ndarray, keys: tuple[int, int, int], columns: Mapping[int
     return out
 
 
-def width(a: BimFace, b: BimFace, plane_a: ObservedPlane, plane_b: ObservedPlane, T_S_B: np.ndarray,
-          cfg: DeviationConfig) -> tuple[float, float, float] | None:
-    """(planned, built, sigma) of the width between faces `a` and `b`, measured by their
-    landmarks; None where taking their own factors out leaves it unmeasured."""
+def distance_between(a: BimFace, b: BimFace, plane_a: ObservedPlane, plane_b: ObservedPlane,
+                     T_S_B: np.ndarray) -> tuple[float, float, float] | None:
+    """(planned, built, sigma) of the distance between opposite faces `a` and `b` (a room's
+    width where they face each other, a wall's thickness where they are its two sides),
+    measured by their landmarks; None where taking their own factors out leaves it
+    unmeasured."""
+    side = _arrangement(a, b)
     keys = list(dict.fromkeys(plane_a.keys + plane_b.keys))
     dims = {key: d for plane in (plane_a, plane_b) for key, d in zip(plane.keys, _KEY_DIMS)}
     starts = np.concatenate([[0], np.cumsum([dims[key] for key in keys])])
@@ -107,37 +142,51 @@ def width(a: BimFace, b: BimFace, plane_a: ObservedPlane, plane_b: ObservedPlane
         e, J = plane_to_bim_residual(face, plane, T_S_B)
         J = _scatter(J, plane.keys, columns, dim)
         y, H = deviation_terms(e + J @ shift, face)
-        change -= y[0]  # (an offset into the room narrows it)
-        gradient -= H[0] @ J
+        # (an offset out of the wall, into the room, narrows the room and thickens the wall)
+        change -= side * y[0]
+        gradient -= side * H[0] @ J
     variance = float(gradient @ cov @ gradient)
     if not variance > 0:  # (the two factors were all that placed it: rounding left nothing)
         return None
-    planned = 0.5 * (float(point_plane_distance(np.asarray(b.centre), a.plane))
+    planned = side * 0.5 * (float(point_plane_distance(np.asarray(b.centre), a.plane))
                      + float(point_plane_distance(np.asarray(a.centre), b.plane)))
     return planned, planned + float(change), float(np.sqrt(variance))
 
 
-def room_widths(faces: Sequence[BimFace], measured: Sequence[FaceReport], planes: Mapping[int, ObservedPlane],
-                T_S_B: np.ndarray, cfg: DeviationConfig) -> list[Width]:
-    """Every pair of measured wall faces of one room that face each other (`_facing`), each by
-    a landmark of its own from one solve, as a `Width`."""
+def _measured_pairs(faces: Sequence[BimFace], measured: Sequence[FaceReport], planes: Mapping[int, ObservedPlane],
+                    T_S_B: np.ndarray, pair: Callable[[BimFace, BimFace], bool], cfg: DeviationConfig):
+    """Every pair of measured wall faces that `pair` accepts, each by a landmark of its own
+    from one solve: the two faces and their `Distance` (`distance_between`)."""
     by_id = {face.id: face for face in faces}
-    reports = [r for r in measured if r.landmark is not None and by_id[r.face_id].space is not None
-               and by_id[r.face_id].kind == "wall"]
-    out = []
+    reports = [r for r in measured if r.landmark is not None and by_id[r.face_id].kind == "wall"]
     for i, ra in enumerate(reports):
         for rb in reports[i + 1:]:
             a, b = by_id[ra.face_id], by_id[rb.face_id]
             pa, pb = planes[ra.landmark], planes[rb.landmark]
-            if (a.space.guid != b.space.guid or ra.landmark == rb.landmark or pa.joint is None or pa.joint is not pb.joint
-                    or not _facing(a, b, cfg)):
+            if ra.landmark == rb.landmark or pa.joint is None or pa.joint is not pb.joint or not pair(a, b):
                 continue
-            measured_width = width(a, b, pa, pb, T_S_B, cfg)
-            if measured_width is None:
+            if (measured_distance := distance_between(a, b, pa, pb, T_S_B)) is None:
                 continue
-            planned, built, sigma = measured_width
+            planned, built, sigma = measured_distance
             n_keyframes = min(ra.n_keyframes, rb.n_keyframes)
-            # (a width is an offset without a tilt: the faces' rule, its tilt term left out)
+            # (an offset without a tilt: the faces' rule, its tilt term left out)
             status = classify(Deviation(built - planned, sigma, 0.0, 0.0), n_keyframes, cfg)
-            out.append(Width(a.space.guid, a.space.name, (a.id, b.id), planned, built, sigma, n_keyframes, status))
-    return out
+            yield a, b, Distance(faces=(a.id, b.id), planned_m=planned, built_m=built, sigma_m=sigma,
+                                 n_keyframes=n_keyframes, status=status)
+
+
+def room_widths(faces: Sequence[BimFace], measured: Sequence[FaceReport], planes: Mapping[int, ObservedPlane],
+                T_S_B: np.ndarray, cfg: DeviationConfig) -> list[Width]:
+    """Every pair of measured wall faces of one room that face each other (`_facing`) as a `Width`."""
+    def pair(a: BimFace, b: BimFace) -> bool:
+        return a.space is not None and b.space is not None and a.space.guid == b.space.guid and _facing(a, b, cfg)
+
+    return [Width(**vars(d), space_guid=a.space.guid, space_name=a.space.name)
+            for a, _, d in _measured_pairs(faces, measured, planes, T_S_B, pair, cfg)]
+
+
+def wall_thicknesses(faces: Sequence[BimFace], measured: Sequence[FaceReport], planes: Mapping[int, ObservedPlane],
+                     T_S_B: np.ndarray, cfg: DeviationConfig) -> list[Thickness]:
+    """Every pair of measured faces on the two sides of one wall (`_two_sides`) as a `Thickness`."""
+    return [Thickness(**vars(d), wall_guid=a.wall_guid, wall_name=a.wall_name)
+            for a, _, d in _measured_pairs(faces, measured, planes, T_S_B, lambda a, b: _two_sides(a, b, cfg), cfg)]

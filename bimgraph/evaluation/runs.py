@@ -144,12 +144,12 @@ def run_summary(out_dir: Path) -> list[tuple[str, str]]:
         rows += [("deviating", f"{f.wall_name or f.wall_guid} ({f.face_id}): offset {100 * f.offset_m:+.1f} ± "
                                f"{100 * f.offset_sigma_m:.1f} cm, tilt {f.tilt_deg:.2f} ± {f.tilt_sigma_deg:.2f} deg")
                  for f in deviations.faces if f.status == "deviating"]
-        if deviations.widths:
-            width_counts = Counter(w.status for w in deviations.widths)
-            rows.append(("room widths", ", ".join(f"{width_counts.get(k, 0)} {k.replace('_', ' ')}" for k in WIDTH_STATUSES)))
-        rows += [("width", f"{w.space_name or w.space_guid} between {w.faces[0]} and {w.faces[1]}: {w.built_m:.3f} ± "
-                           f"{w.sigma_m:.3f} m built, {w.planned_m:.3f} m planned ({100 * (w.built_m - w.planned_m):+.1f} cm)")
-                 for w in deviations.widths if w.status == "deviating"]
+        rows += _distance_rows("room widths", "width", deviations.widths, lambda w: (
+            f"{w.space_name or w.space_guid} between {w.faces[0]} and {w.faces[1]}: {w.built_m:.3f} ± {w.sigma_m:.3f} m built, "
+            f"{w.planned_m:.3f} m planned ({100 * (w.built_m - w.planned_m):+.1f} cm)"))
+        rows += _distance_rows("wall thicknesses", "thickness", deviations.thicknesses, lambda t: (
+            f"{t.wall_name or t.wall_guid} between {t.faces[0]} and {t.faces[1]}: {100 * t.built_m:.1f} ± {100 * t.sigma_m:.1f} cm "
+            f"built, {100 * t.planned_m:.1f} cm planned ({100 * (t.built_m - t.planned_m):+.1f} cm)"))
         for lead, explanation in zip(("either", "or"), deviations.contested):
             faces = "; ".join(f"{f.wall_name or f.wall_guid} ({f.face_id}) offset {100 * f.offset_m:+.1f} ± "
                               f"{100 * f.offset_sigma_m:.1f} cm" for f in explanation.deviating) or "no wall off beyond tolerance"
@@ -161,6 +161,16 @@ def run_summary(out_dir: Path) -> list[tuple[str, str]]:
     elif seconds is not None:
         rows.append(("time", f"{seconds:.1f} s in {summary.rounds or 1} rounds"))
     return rows
+
+
+def _distance_rows(title: str, label: str, records, describe) -> list[tuple[str, str]]:
+    """The report's room widths or wall thicknesses: a row of counts by status, and a row for
+    each off plan (`describe`d)."""
+    if not records:
+        return []
+    counts = Counter(r.status for r in records)
+    return ([(title, ", ".join(f"{counts.get(k, 0)} {k.replace('_', ' ')}" for k in WIDTH_STATUSES))]
+            + [(label, describe(r)) for r in records if r.status == "deviating"])
 
 
 def write_metrics(out_dir: Path, metrics: dict) -> None:

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import time
 from collections import defaultdict
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -172,21 +172,29 @@ class RerunViewer:
         """The deviation report's room widths (`WidthRecord`s), once, at the last keyframe: a
         line from each width's first face across the room to the other's plane; where off plan
         in the deviating colour and labelled with the width as built and its change from plan."""
+        self._distances(bp.WIDTHS, widths, 1.0, lambda w: f"{w.built_m:.3f} m")
+
+    def thicknesses(self, thicknesses) -> None:
+        """The deviation report's wall thicknesses (`ThicknessRecord`s), as `widths` draws
+        widths: a line from the first face through the wall to the other side's plane."""
+        self._distances(bp.THICKNESSES, thicknesses, -1.0, lambda t: f"{100 * t.built_m:.1f} cm")
+
+    def _distances(self, entity: str, records, direction: float, built: Callable[[object], str]) -> None:
         index = self.plane_map.index
-        widths = [w for w in widths if w.faces[0] in index]  # (`bimgraph view --bim` another model)
-        if not widths:
+        records = [r for r in records if r.faces[0] in index]  # (`bimgraph view --bim` another model)
+        if not records:
             return
         self.flush()
         strips, labels, colours = [], [], []
-        for w in widths:
-            face = self.plane_map.faces[index[w.faces[0]]]
+        for r in records:
+            face = self.plane_map.faces[index[r.faces[0]]]
             start = np.asarray(face.centre, dtype=float)
-            strips.append([start, start + w.planned_m * np.asarray(face.normal)])
-            off = w.status == "deviating"  # (labelled only then: widths across one room cross at its middle)
-            labels.append(f"{w.built_m:.3f} m ({100 * (w.built_m - w.planned_m):+.1f} cm)" if off else "")
+            strips.append([start, start + direction * r.planned_m * np.asarray(face.normal)])
+            off = r.status == "deviating"  # (labelled only then: widths across one room cross at its middle)
+            labels.append(f"{built(r)} ({100 * (r.built_m - r.planned_m):+.1f} cm)" if off else "")
             colours.append((self.cfg.colour_deviating if off else self.cfg.colour_associated)[:3])
-        self._log_now(bp.WIDTHS, self.rr.LineStrips3D(strips, labels=labels, colors=colours,
-                                                      radii=0.5 * self.cfg.trajectory_radius_m))
+        self._log_now(entity, self.rr.LineStrips3D(strips, labels=labels, colors=colours,
+                                                   radii=0.5 * self.cfg.trajectory_radius_m))
 
     def close(self):
         """Send everything and close the recording's sinks (an .rrd is complete only then)."""

@@ -57,12 +57,13 @@ def face_statuses(report) -> dict[str, str]:
 
 
 def finish(viewer: RerunViewer, out_dir: Path, report=None) -> None:
-    """Colour the deviating and contested faces and draw the room widths if the run wrote a
-    deviation report (`report`, if read already), and close."""
+    """Colour the deviating and contested faces and draw the room widths and wall thicknesses
+    if the run wrote a deviation report (`report`, if read already), and close."""
     report = report or deviation_report(out_dir)
     if report is not None:
         mark_deviations(viewer, face_statuses(report))
         viewer.widths(report.widths)
+        viewer.thicknesses(report.thicknesses)
     viewer.close()
 
 

@@ -338,6 +338,31 @@ def test_offline_splits_a_landmark_per_section_in_the_order_it_saw_them():
         ("r20S", [0, 2, 4]), ("r00S", [1]), ("r10S", [3])]
 
 
+def test_offline_moves_a_landmark_wholly_on_another_section_to_it():
+    """A landmark matched to one section of a wall (as the association found it, early) whose
+    observations all lie on another takes that one: the deviation report had blamed a
+    basement wall for the coplanar wall above it."""
+    from bimgraph.backend.graph import E, L, X
+    from bimgraph.backend.offline import OfflineEstimator
+
+    scene = make_scene(10, rooms=(3, 1), seed=1)
+    est = OfflineEstimator(scene.plane_map, BackendConfig(), scene.initial)
+    faces = {f.id: f for f in scene.plane_map.faces}
+    T_S_B = inverse(scene.initial.T_B_S)
+    values = gtsam.Values()
+    values.insert(E, gtsam.Pose3(T_S_B))
+    plane_S = plane_from_frame(np.array([*faces["r10S"].normal, faces["r10S"].offset]), scene.initial.T_B_S)
+    lm = Landmark(0, 0, plane_S, np.eye(3) * 1e-4, np.eye(4), face="r10S")
+    for k in range(3):
+        values.insert(X(k), gtsam.Pose3(np.eye(4)))
+        lm.add_observation(k, 0, (T_S_B[:3, :3] @ np.asarray(faces["r20S"].centre) + T_S_B[:3, 3])[None], None, 16)
+    est.landmarks.add(lm)
+    values.insert(L(0), gtsam.OrientedPlane3(plane_S))
+    assert est._split(values)  # (a change: the next round solves with the face's own factor)
+    assert [(x.face, len(x.observations)) for x in est.landmarks.items] == [("r20S", 3)]
+    assert not est._split(values)
+
+
 @pytest.mark.parametrize("tilt", [None, DepthTilt(Camera(width=640, height=480, fx=525.0, fy=525.0, cx=319.5, cy=239.5), 0.002)])
 def test_a_wall_seen_in_two_parts_becomes_one_landmark_online(tilt):
     """A wall seen at one end, then at the other (too far apart for the SLAM association's

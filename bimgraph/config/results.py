@@ -36,7 +36,7 @@ class DeviationConfig(Section):
     width_max_angle_deg: float = Field(1.0, gt=0, description="a room's width (a wall's thickness) is measured between two wall faces of that room (of that wall) whose normals are opposite within this...")
     width_min_overlap_m: float = Field(0.5, ge=0, description="...and whose extents along the walls overlap by this much (they face each other; are back to back), each measured by a landmark of its own")
     bcf_author: str = Field("bimgraph", description="author of the BCF topics")
-    bcf_view_distance_m: float = Field(3.0, gt=0, description="the BCF viewpoint looks at the face's centre from this far along its normal")
+    bcf_view_distance_m: float = Field(3.0, gt=0, description="the BCF viewpoint looks at the face (its material nearest its centre) from this far along its normal, or nearer where the room is shallower")
 
     @model_validator(mode="after")
     def _ranges(self):

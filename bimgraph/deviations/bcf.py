@@ -1,5 +1,6 @@
 """The BIM Collaboration Format file: one topic per deviating wall face, naming the wall's IFC
-GlobalId and with a viewpoint from inside the room looking at the face, so that BIM tools
+GlobalId and with a viewpoint from inside the room looking at the face (at its material, not at
+a window in it: `bimgraph.deviations.viewpoint`), so that BIM tools
 (BIMcollab, Solibri, BlenderBIM, Revit plug-ins) open the issue on the right wall; and one
 topic naming the walls of a contest (one of them off plan, which one the data cannot tell),
 one per room width off plan, naming its two walls, and one per wall thickness off plan."""
@@ -18,6 +19,7 @@ from bcf.v3.visinfo import VisualizationInfoHandler, build_camera_from_vectors, 
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import DeviationConfig
 from bimgraph.deviations.report import DeviationsFile
+from bimgraph.deviations.viewpoint import viewpoint
 from bimgraph.files import ensure_folder, existing_file
 from bimgraph.geometry import pose_from_tum
 
@@ -67,10 +69,10 @@ def write_bcf(deviations: DeviationsFile, plane_map: PlaneMap, path: Path, cfg: 
     def add_topic(title: str, description: str, face_id: str, guids: list[str]) -> None:
         face = plane_map.faces[faces[face_id]]
         topic = bcf.add_topic(title, description, cfg.bcf_author, topic_type="Issue", topic_status="Open")
-        # Look at the face's centre from inside its room, from half a metre above it.
-        offset_B = cfg.bcf_view_distance_m * np.asarray(face.normal) + np.array([0.0, 0.0, 0.5])
-        target_W = T_W_B[:3, :3] @ np.asarray(face.centre) + T_W_B[:3, 3]
-        camera = build_camera_from_vectors(*camera_vectors_from_target_position(target_W, T_W_B[:3, :3] @ offset_B))
+        # Look at the face from inside its room, from half a metre above the point looked at.
+        camera_B, target_B = viewpoint(plane_map, face, cfg.bcf_view_distance_m, 0.5)
+        target_W = T_W_B[:3, :3] @ target_B + T_W_B[:3, 3]
+        camera = build_camera_from_vectors(*camera_vectors_from_target_position(target_W, T_W_B[:3, :3] @ (camera_B - target_B)))
         info = mdl.VisualizationInfo(guid=str(uuid.uuid4()), components=build_components(*guids),
                                      perspective_camera=camera)
         topic.add_visinfo_handler(VisualizationInfoHandler(info))

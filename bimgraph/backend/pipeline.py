@@ -26,6 +26,7 @@ from bimgraph.deviations.outputs import DEVIATION_FILES, write_deviation_outputs
 from bimgraph.errors import ConfigError, InputError
 from bimgraph.files import ensure_folder
 from bimgraph.geometry import inverse, normalise_plane, plane_from_frame, pose_from_tum
+from bimgraph.sequence.checks import sequence_warnings
 from bimgraph.sequence.format import Keyframe, SequenceMeta, load_meta, load_sequence
 
 
@@ -199,6 +200,9 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
         hint = (f": detect them in its depth images first, with `bimgraph planes {seq_dir}`"
                 if any(kf.depth for kf in sequence.keyframes) else "")
         raise InputError(f"{seq_dir}: no keyframe has a plane detection{hint}")
+    if log is not None:
+        for warning in sequence_warnings(sequence.keyframes):
+            log(f"warning: {seq_dir}: {warning}")
     if seeds:
         initial = seed_alignment(sequence.keyframes, plane_map, list(seeds), cfg, initial)
     elif meta.initial_alignment is None and log is not None:

@@ -140,8 +140,9 @@ class PlaneObservation(BaseModel):
 
 class Keyframe(BaseModel):
     """One line of keyframes.jsonl. `T_S_C` is `tx ty tz qx qy qz qw` (TUM order); `cov` is
-    the 6x6 covariance of the front-end pose in gtsam's Pose3 tangent order (rotation, then
-    translation); `depth`/`rgb` are image paths relative to the sequence folder."""
+    the 6x6 covariance of the front-end's step from the previous keyframe to this one, in
+    gtsam's Pose3 tangent order (rotation, then translation); `depth`/`rgb` are image paths
+    relative to the sequence folder."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     index: int = Field(ge=0)

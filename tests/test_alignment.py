@@ -65,3 +65,21 @@ def test_levelled_alignment_keeps_heading_and_pins_tilt():
     assert np.degrees(sigmas[2]) == pytest.approx(2.0)
     np.testing.assert_allclose(sigmas[3:], 0.2)
     assert level.gravity_aligned
+
+
+def test_seed_pairs_that_disagree_are_refused(cfg):
+    """Two walls' pairs swapped: a rotation fits them exactly, one that turns the world over
+    (a run went on with T_B_S 87 m below the floor). With S gravity-aligned, the seeds are a
+    turn about z, which cannot swap two walls: refused, naming the pair that does not fit.
+    Consistent pairs still fit, with the turn."""
+    from bimgraph.errors import ConfigError
+
+    T_B_S = make_pose(Rotation.from_euler("z", 30, degrees=True).as_matrix(), [5.0, -3.0, 0.0])
+    planes_B = np.array([[0.0, -1.0, 0.0, 4.0], [-1.0, 0.0, 0.0, 6.0]])  # north wall y = 4, east wall x = 6
+    planes_S = np.array([plane_from_frame(p, inverse(T_B_S)) for p in planes_B])
+    prior = Alignment.from_sigmas(np.eye(4), 180.0, 100.0)
+    prior.gravity_aligned = True
+    good = align_from_seeds(planes_S, planes_B, cfg, prior, labels=["0:0:N", "0:1:E"])
+    np.testing.assert_allclose(good.T_B_S[:3, :3], T_B_S[:3, :3], atol=1e-6)
+    with pytest.raises(ConfigError, match=r"seed 0:1:N: its plane lies \d+ deg from its face .* the pairs disagree"):
+        align_from_seeds(planes_S, planes_B[::-1], cfg, prior, labels=["0:0:E", "0:1:N"])

@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 
 from bimgraph.backend.graph import E, L, X, FactorBuilder, cov_T_B_S, pose3, sigmas_cov
 from bimgraph.config import BackendConfig
-from bimgraph.errors import InputError
+from bimgraph.errors import ConfigError, InputError
 from bimgraph.geometry import least_rotation, make_pose, rotation_from_correlation
 
 _WEAK = 1e6  # variance factor of the prior in the directions the seeds observe
@@ -106,9 +106,17 @@ def unlocked_covariance(alignment: Alignment, directions: list[dict]) -> np.ndar
     return extra
 
 
-def _rotation_from_normals(normals_S: np.ndarray, normals_B: np.ndarray, R_prior: np.ndarray) -> np.ndarray:
+def _rotation_from_normals(normals_S: np.ndarray, normals_B: np.ndarray, R_prior: np.ndarray, gravity: bool) -> np.ndarray:
     """R_B_S with R n_S ~ n_B (Kabsch); with parallel normals, the prior turned by the least
-    rotation that takes its prediction of the first normal onto the observed one."""
+    rotation that takes its prediction of the first normal onto the observed one. With
+    `gravity` (S and B both z-up), a turn about z: two walls' pairs swapped fit a rotation
+    exactly, one that turns the world over."""
+    if gravity:
+        (sx, sy), (bx, by) = normals_S[:, :2].T, normals_B[:, :2].T
+        sin, cos = float(np.sum(sx * by - sy * bx)), float(np.sum(sx * bx + sy * by))
+        if np.hypot(sin, cos) < 1e-9:  # (only level planes: no heading in them)
+            return R_prior
+        return Rotation.from_rotvec([0.0, 0.0, np.arctan2(sin, cos)]).as_matrix()
     R = rotation_from_correlation(normals_S.T @ normals_B)
     if R is not None:
         return R
@@ -116,16 +124,27 @@ def _rotation_from_normals(normals_S: np.ndarray, normals_B: np.ndarray, R_prior
 
 
 def align_from_seeds(planes_S: np.ndarray, planes_B: np.ndarray, cfg: BackendConfig,
-                     prior: Alignment | None = None, centres_B: np.ndarray | None = None) -> Alignment:
+                     prior: Alignment | None = None, centres_B: np.ndarray | None = None,
+                     labels: list[str] | None = None) -> Alignment:
     """`T_B_S` from seed pairs (plane in S, BIM face plane in B, with the faces' centres if
     known), its covariance, and the directions the seeds leave unobservable (which keep the
-    prior's uncertainty)."""
+    prior's uncertainty). A gravity-aligned prior makes it a turn about z. ConfigError where a
+    pair's normals stay more than `seed_max_angle_deg` apart once turned (the pairs disagree:
+    one is wrong), naming it by its `labels` entry."""
     planes_S, planes_B = np.asarray(planes_S, float).reshape(-1, 4), np.asarray(planes_B, float).reshape(-1, 4)
     if len(planes_S) == 0 or len(planes_S) != len(planes_B):
         raise InputError(f"seed alignment needs pairs of planes, got {len(planes_S)} and {len(planes_B)}")
     if prior is None:
         prior = Alignment.from_sigmas(np.eye(4), 180.0, 100.0)
-    R = _rotation_from_normals(planes_S[:, :3], planes_B[:, :3], prior.T_B_S[:3, :3])
+    R = _rotation_from_normals(planes_S[:, :3], planes_B[:, :3], prior.T_B_S[:3, :3], prior.gravity_aligned)
+    angles = np.degrees(np.arccos(np.clip(np.sum((planes_S[:, :3] @ R.T) * planes_B[:, :3], axis=1), -1.0, 1.0)))
+    if angles.max() > cfg.seed_max_angle_deg:
+        worst = int(np.argmax(angles))
+        name = labels[worst] if labels else f"pair {worst}"
+        raise ConfigError(f"seed {name}: its plane lies {angles[worst]:.0f} deg from its face once the seeds are turned onto "
+                         f"the plan{' about the vertical' if prior.gravity_aligned else ''} (at most "
+                         f"{cfg.seed_max_angle_deg:g}, backend.seed_max_angle_deg): the pairs disagree, one of them is not "
+                         "that plane and face")
     # offsets: d_B = d_S - n_B . t, regularised toward the prior where the normals say nothing
     n_B = planes_S[:, :3] @ R.T
     info_t = n_B.T @ n_B + 1e-6 * np.eye(3)
@@ -151,5 +170,5 @@ def align_from_seeds(planes_S: np.ndarray, planes_B: np.ndarray, cfg: BackendCon
     result = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
     T_S_B = result.atPose3(E)
     cov_E = gtsam.Marginals(graph, result).marginalCovariance(E)
-    return Alignment(T_S_B.inverse().matrix(), cov_T_B_S(T_S_B, cov_E), unobservable)
+    return Alignment(T_S_B.inverse().matrix(), cov_T_B_S(T_S_B, cov_E), unobservable, prior.gravity_aligned)
 

@@ -116,9 +116,8 @@ def seed_alignment(keyframes: list[Keyframe], plane_map: PlaneMap, seeds: list[t
         planes_S.append(plane_from_frame(normalise_plane(kf.planes[i].plane), kf.pose))
         planes_B.append(plane_map.faces[plane_map.index[face]].plane)
         centres_B.append(plane_map.faces[plane_map.index[face]].centre)
-    alignment = align_from_seeds(np.array(planes_S), np.array(planes_B), cfg.backend, prior, np.array(centres_B))
-    alignment.gravity_aligned = prior.gravity_aligned
-    return alignment
+    return align_from_seeds(np.array(planes_S), np.array(planes_B), cfg.backend, prior, np.array(centres_B),
+                            [f"{k}:{i}:{face}" for k, i, face in seeds])
 
 
 def oracle_of(root: Path) -> dict[tuple[int, int], str | None]:

@@ -121,6 +121,7 @@ class BackendConfig(Section):
     bim_association: BimAssociationConfig = BimAssociationConfig()
     isam2: Isam2Config = Isam2Config()
     offline: OfflineConfig = OfflineConfig()
+    seed_max_angle_deg: float = Field(10.0, gt=0, le=180, description="--seed pairs: each plane, turned onto the plan by the registration, must lie within this of its face's normal; else the pairs disagree (one names the wrong plane or face) and the run stops")
     unobservable_min_angle_deg: float = Field(10.0, gt=0, le=90, description="a direction of T_B_S is reported unobservable unless matched faces' normals reach this far out of its orthogonal plane")
     lock_rot_deg: float = Field(0.01, gt=0, description="directions of T_B_S that no face of the map can observe (e.g. height when it has only walls) are held at the initial alignment with this sigma (rotation)...")
     lock_trans_m: float = Field(0.001, gt=0, description="...and this sigma (translation)")

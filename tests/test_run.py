@@ -364,3 +364,19 @@ def test_a_sequence_without_plane_detections_is_one_line(world, tmp_path, depth)
     message = assert_one_line_error(run(seq, "-o", out), 2, "no keyframe has a plane detection")
     assert ("bimgraph planes" in message) == depth
     assert not out.exists()
+
+
+def test_the_printed_sigmas_are_along_B():
+    """extrinsic.json's covariance is in the right tangent of T_B_S, whose axes are S's; the
+    printout gives the sigmas along B's axes (a review read S's as B's: 1.5, 0.5 cm against
+    1.24, 0.88 along B)."""
+    from bimgraph.evaluation.runs import sigmas_in_B
+    from bimgraph.geometry import make_pose
+
+    T_B_S = make_pose(np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]), [5.0, -3.0, 0.0])  # 90 deg yaw
+    cov = np.diag([1e-6, 4e-6, 9e-6, 1e-4, 4e-4, 9e-4]).tolist()
+    rot, pos = sigmas_in_B(T_B_S, cov)
+    np.testing.assert_allclose(pos, [0.02, 0.01, 0.03])  # S's y along B's x
+    np.testing.assert_allclose(rot, [0.002, 0.001, 0.003])
+    cov[0][0] = None  # (an early online keyframe's has no figures)
+    assert np.isnan(sigmas_in_B(T_B_S, cov)[0][1])

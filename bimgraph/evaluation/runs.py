@@ -114,8 +114,9 @@ def run_summary(out_dir: Path) -> list[tuple[str, str]]:
     extrinsic = load_extrinsic(out_dir / EXTRINSIC)
     T_B_S = pose_from_tum(extrinsic.T_B_S)
     yaw = np.degrees(np.arctan2(T_B_S[1, 0], T_B_S[0, 0]))
-    sigma_cm = ", ".join("?" if s is None else f"{100 * s:.1f}" for s in extrinsic.sigma_trans_m)
-    sigma_deg = ", ".join("?" if s is None else f"{s:.2f}" for s in extrinsic.sigma_rot_deg)
+    sigma_rot_rad, sigma_trans_m = sigmas_in_B(T_B_S, extrinsic.covariance)
+    sigma_cm = ", ".join("?" if np.isnan(s) else f"{100 * s:.1f}" for s in sigma_trans_m)
+    sigma_deg = ", ".join("?" if np.isnan(s) else f"{np.degrees(s):.2f}" for s in sigma_rot_rad)
     unobservable = "; ".join(f"{u.kind} along {np.round(u.axis_B, 3).tolist()} (held at the initial alignment)"
                              for u in extrinsic.unobservable) or "none"
     rows = [("mode", summary.mode + ("" if summary.finished else " (stopped early: outputs up to the last keyframe written)")),
@@ -124,7 +125,7 @@ def run_summary(out_dir: Path) -> list[tuple[str, str]]:
                           + ("" if summary.matched_landmarks or not summary.keyframes else
                              " (is the initial alignment, sequence.json's or the --seed pairs', within its sigmas?)")),
             ("T_B_S", f"position {np.round(T_B_S[:3, 3], 3).tolist()} m, heading {yaw:.2f} deg"),
-            ("T_B_S sigma", f"position {sigma_cm} cm, rotation {sigma_deg} deg"),
+            ("T_B_S sigma", f"position {sigma_cm} cm, rotation {sigma_deg} deg (along B's x, y, z)"),
             ("unobservable", unobservable)]
     if drift := summary.frontend_drift:
         rows.append(("front-end drift", f"correction {drift.rotation_deg_per_m[2]:+.3f} deg/m about z, "
@@ -161,6 +162,14 @@ def run_summary(out_dir: Path) -> list[tuple[str, str]]:
     elif seconds is not None:
         rows.append(("time", f"{seconds:.1f} s in {summary.rounds or 1} rounds"))
     return rows
+
+
+def sigmas_in_B(T_B_S: np.ndarray, covariance) -> tuple[np.ndarray, np.ndarray]:
+    """The one-sigma rotation (rad) and position (m) of `T_B_S` along B's axes, from its
+    covariance in gtsam's right tangent (whose axes are S's); NaN where it has no figure."""
+    cov = np.array([[np.nan if v is None else v for v in row] for row in covariance], dtype=float)
+    R = T_B_S[:3, :3]
+    return (np.sqrt(np.diag(R @ cov[:3, :3] @ R.T)), np.sqrt(np.diag(R @ cov[3:, 3:] @ R.T)))
 
 
 def _distance_rows(title: str, label: str, records, describe) -> list[tuple[str, str]]:

@@ -29,6 +29,10 @@ def test_the_target_is_on_the_wall_beside_its_window():
     assert np.linalg.norm([x - 2.0, z - 1.35]) == pytest.approx(0.6 + TARGET_MARGIN_M, abs=0.02)
     # a plain wall is looked at in its centre
     np.testing.assert_allclose(face_target(wall("p", 0.0, 1.0)), [2.0, 0.0, 1.35], atol=1e-9)
+    # a face too narrow for the margin (a pier 0.4 m wide): its middle
+    pier = BimFace(id="pier", wall_guid="pier", normal=(0.0, 1.0, 0.0), offset=0.0,
+                   polygon=[(0.0, 0.0, 0.0), (0.4, 0.0, 0.0), (0.4, 0.0, 2.7), (0.0, 0.0, 2.7)])
+    np.testing.assert_allclose(face_target(pier)[[0, 1]], [0.2, 0.0], atol=0.01)
 
 
 def test_the_camera_stands_in_a_room_shallower_than_the_view_distance():

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import shapely
-from shapely.ops import nearest_points
+from shapely.ops import nearest_points, polylabel
 
 from bimgraph.bim.planemap import BimFace, PlaneMap
 from bimgraph.geometry import plane_frame, plane_shape
@@ -31,7 +31,7 @@ def face_target(face: BimFace, margin_m: float = TARGET_MARGIN_M) -> np.ndarray:
     inner = shape.buffer(-margin_m)
     if inner.is_empty:
         largest = max(getattr(shape, "geoms", [shape]), key=lambda p: p.area)
-        point = shapely.polylabel(largest, tolerance=0.01)
+        point = polylabel(largest, tolerance=0.01)
     else:
         point = nearest_points(inner, centre)[0]
     return origin + basis @ np.array([point.x, point.y])

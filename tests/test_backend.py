@@ -310,10 +310,10 @@ def test_a_landmarks_plane_to_bim_factor_is_replaced_and_left_out_of_the_batch_g
     graph.remove_bim(0)  # nothing there: no error
 
 
-def test_offline_splits_a_landmark_per_section_in_the_order_it_saw_them():
-    """A landmark whose observations lie on several sections of a wall becomes one per section,
-    numbered in the order of their first observations: by a set of face ids, runs differed
-    with Python's string hashing."""
+def offline_with_one_landmark(matched: str, seen_on: list[str]):
+    """An offline estimator on three rooms in a row whose one landmark, matched to south face
+    `matched`, has seen the centre of face `seen_on[k]` at keyframe k; and the values `_split`
+    reads."""
     from bimgraph.backend.graph import E, L, X
     from bimgraph.backend.offline import OfflineEstimator
 
@@ -323,16 +323,21 @@ def test_offline_splits_a_landmark_per_section_in_the_order_it_saw_them():
     T_S_B = inverse(scene.initial.T_B_S)
     values = gtsam.Values()
     values.insert(E, gtsam.Pose3(T_S_B))
-    order = ["r20S", "r00S", "r20S", "r10S", "r20S"]  # first seen: r20S, r00S, r10S
-    for k in range(len(order)):
+    plane_S = plane_from_frame(np.array([*faces[matched].normal, faces[matched].offset]), scene.initial.T_B_S)
+    lm = Landmark(0, 0, plane_S, np.eye(3) * 1e-4, np.eye(4), face=matched)
+    for k, face in enumerate(seen_on):
         values.insert(X(k), gtsam.Pose3(np.eye(4)))
-    plane_S = plane_from_frame(np.array([*faces["r10S"].normal, faces["r10S"].offset]), scene.initial.T_B_S)
-    lm = Landmark(0, 0, plane_S, np.eye(3) * 1e-4, np.eye(4), face="r10S")
-    for k, face in enumerate(order):
-        centre_S = T_S_B[:3, :3] @ np.asarray(faces[face].centre) + T_S_B[:3, 3]
-        lm.add_observation(k, 0, centre_S[None], None, 16)
+        lm.add_observation(k, 0, (T_S_B[:3, :3] @ np.asarray(faces[face].centre) + T_S_B[:3, 3])[None], None, 16)
     est.landmarks.add(lm)
     values.insert(L(0), gtsam.OrientedPlane3(plane_S))
+    return est, values
+
+
+def test_offline_splits_a_landmark_per_section_in_the_order_it_saw_them():
+    """A landmark whose observations lie on several sections of a wall becomes one per section,
+    numbered in the order of their first observations: by a set of face ids, runs differed
+    with Python's string hashing."""
+    est, values = offline_with_one_landmark("r10S", ["r20S", "r00S", "r20S", "r10S", "r20S"])
     assert est._split(values)
     assert [(x.face, [k for k, _ in x.observations]) for x in est.landmarks.items] == [
         ("r20S", [0, 2, 4]), ("r00S", [1]), ("r10S", [3])]
@@ -342,22 +347,7 @@ def test_offline_moves_a_landmark_wholly_on_another_section_to_it():
     """A landmark matched to one section of a wall (as the association found it, early) whose
     observations all lie on another takes that one: the deviation report had blamed a
     basement wall for the coplanar wall above it."""
-    from bimgraph.backend.graph import E, L, X
-    from bimgraph.backend.offline import OfflineEstimator
-
-    scene = make_scene(10, rooms=(3, 1), seed=1)
-    est = OfflineEstimator(scene.plane_map, BackendConfig(), scene.initial)
-    faces = {f.id: f for f in scene.plane_map.faces}
-    T_S_B = inverse(scene.initial.T_B_S)
-    values = gtsam.Values()
-    values.insert(E, gtsam.Pose3(T_S_B))
-    plane_S = plane_from_frame(np.array([*faces["r10S"].normal, faces["r10S"].offset]), scene.initial.T_B_S)
-    lm = Landmark(0, 0, plane_S, np.eye(3) * 1e-4, np.eye(4), face="r10S")
-    for k in range(3):
-        values.insert(X(k), gtsam.Pose3(np.eye(4)))
-        lm.add_observation(k, 0, (T_S_B[:3, :3] @ np.asarray(faces["r20S"].centre) + T_S_B[:3, 3])[None], None, 16)
-    est.landmarks.add(lm)
-    values.insert(L(0), gtsam.OrientedPlane3(plane_S))
+    est, values = offline_with_one_landmark("r10S", ["r20S"] * 3)
     assert est._split(values)  # (a change: the next round solves with the face's own factor)
     assert [(x.face, len(x.observations)) for x in est.landmarks.items] == [("r20S", 3)]
     assert not est._split(values)

@@ -113,3 +113,15 @@ def test_bcf_reopens_and_names_existing_walls(written, tmp_path, georeferenced):
             pos_B, direction_B = T_B_W[:3, :3] @ p + T_B_W[:3, 3], T_B_W[:3, :3] @ d
             assert np.dot(face.normal, pos_B) + face.offset > 1.0
             assert np.dot(face.normal, direction_B) < -0.5
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_an_earlier_version_loads_without_the_later_fields(written, tmp_path, version):
+    _, _, out = written
+    raw = json.loads((out / JSON_FILE).read_text())
+    raw["version"] = version
+    for later in (("contested", "widths", "thicknesses") if version == 1 else ("thicknesses",)):
+        raw.pop(later)
+    (tmp_path / "old.json").write_text(json.dumps(raw))
+    old = load_deviations(tmp_path / "old.json")
+    assert old.version == version and old.thicknesses == [] and len(old.faces) == 4

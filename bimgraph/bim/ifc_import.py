@@ -17,7 +17,7 @@ import numpy as np
 import shapely
 
 from bimgraph.bim import curved, faces as F
-from bimgraph.bim.ifc_read import ModelReader, open_model, unbalanced_statement
+from bimgraph.bim.ifc_read import ModelReader, missing_references, open_model, unbalanced_statement
 from bimgraph.bim.planemap import BimFace, PlaneMap, Space
 from bimgraph.bim.rooms import Claim, Junctions, Rooms, boundary_claims, split_at, split_face
 from bimgraph.config import BimImportConfig
@@ -56,15 +56,16 @@ def import_ifc(path, cfg: BimImportConfig, log=None, progress=None):
     if len(problems) > _PARSE_WARNINGS:
         log(f"warning: {path.name}: {len(problems) - _PARSE_WARNINGS} more problems of the file's syntax")
     try:
-        reader = ModelReader(model, cfg.threads)
+        reader = ModelReader(model, cfg.threads, missing_references(problems))
     except (InputError, AttributeError, ValueError) as err:  # (a cycle, a reference to no entity, no axes)
         raise FormatError(f"{path}: the building's placement cannot be read ({err})") from None
     voids = {wall.id(): [rel.RelatedOpeningElement for rel in wall.HasOpenings if rel.RelatedOpeningElement is not None]
              for wall in walls}
     spaces = model.by_type("IfcSpace")
     meshes, solids = reader.meshes_and_solids(walls, [o for os in voids.values() for o in os] + list(spaces))
-    skipped = {"walls skipped (no geometry)": _skip(log, "wall", [w for w in walls if w.id() not in meshes], "no geometry",
-                                                   reader.unreadable)}
+    skipped = {"walls skipped (no geometry)": _skip(log, "wall", [w for w in walls if w.id() not in meshes
+                                                                  and w.id() not in reader.unreadable], "no geometry")}
+    _skip(log, "room", [space for space in spaces if space.id() in reader.unreadable], "", reader.unreadable)
     if reader.kernel_fallbacks:
         log(f"warning: {len(reader.kernel_fallbacks)} bodies the schema reader could not read, left to the geometry kernel "
             f"(the first: {reader.kernel_fallbacks[0]})")
@@ -73,7 +74,7 @@ def import_ifc(path, cfg: BimImportConfig, log=None, progress=None):
         log(f"warning: curtain wall {wall.GlobalId} ({wall.Name}): not imported")
 
     wall_faces = _wall_faces(reader, [w for w in walls if w.id() in meshes], meshes, voids, solids, cfg, log, progress)
-    unreadable = [w for w in walls if w.id() in meshes and w.id() in reader.unreadable]
+    unreadable = [w for w in walls if w.id() in reader.unreadable]
     skipped["walls skipped (geometry unreadable)"] = _skip(log, "wall", unreadable, "", reader.unreadable)
     sections = _split_per_room(reader, wall_faces, meshes, spaces, solids, cfg, progress)
     if reader.unread_boundaries:

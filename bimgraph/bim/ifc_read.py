@@ -113,6 +113,21 @@ def unbalanced_statement(path) -> int | None:
     return None
 
 
+_MISSING_REFERENCE = re.compile(r"used by instance #(\d+) at attribute index (\d+)")
+
+
+def missing_references(problems: list[str]) -> dict[int, set[int]]:
+    """Instance id -> the indices of its attributes that name an entity the file lacks, from
+    the parser's messages ("Instance reference #9 used by instance #15042 at attribute index 5
+    not found"). The parser reads such an attribute as unset: a wall whose placement is gone
+    stands at the origin, one whose placement's parent is gone storeys below."""
+    out: dict[int, set[int]] = {}
+    for message in problems:
+        if found := _MISSING_REFERENCE.search(message):
+            out.setdefault(int(found.group(1)), set()).add(int(found.group(2)))
+    return out
+
+
 def _parse_problems(log_text: str) -> list[str]:
     """The messages of errors and of duplicate entities in ifcopenshell's JSON log."""
     out = []
@@ -130,9 +145,11 @@ def _parse_problems(log_text: str) -> list[str]:
 class ModelReader:
     """An open model with its unit scale and frame B; caches placements and storeys."""
 
-    def __init__(self, model: ifcopenshell.file, threads: int):
+    def __init__(self, model: ifcopenshell.file, threads: int, missing: dict[int, set[int]] | None = None):
+        """`missing`: `missing_references` of the file's parse problems."""
         self.model = model
         self.threads = threads
+        self.missing = missing or {}
         self.scale = ifcopenshell.util.unit.calculate_unit_scale(model)  # metres per file unit
         schema.clear_cache()  # one model's placements at a time: each import starts cold, as a new process would
         self._placements = {}
@@ -207,14 +224,32 @@ class ModelReader:
         return out
 
     def _placeable(self, element) -> bool:
-        """Whether the element's placement can be read (it is in no cycle, references no
-        missing entity); why not goes to `unreadable`."""
+        """Whether the element's placement can be read (it is in no cycle, and neither it nor
+        its body names an entity the file lacks); why not goes to `unreadable`."""
+        if element.id() in self.unreadable:
+            return False
+        if self.missing and (user := self._missing_in(element)) is not None:
+            self.unreadable[element.id()] = f"its placement or body names an entity the file lacks (in #{user})"
+            return False
         try:
             self.placement(element)
             return True
         except Exception as err:
             self.unreadable[element.id()] = f"its placement cannot be read ({err})"
             return False
+
+    def _missing_in(self, element) -> int | None:
+        """The first entity of the element's placement chain or body that names an entity the
+        file lacks (the element itself, where its own placement or body attribute does)."""
+        own = {element.attribute_name(i) for i in self.missing.get(element.id(), ())}
+        if own & {"ObjectPlacement", "Representation"}:
+            return element.id()
+        for root in (element.ObjectPlacement, element.Representation):
+            if root is not None:
+                for entity in self.model.traverse(root):
+                    if entity.id() in self.missing:
+                        return entity.id()
+        return None
 
     def storey(self, element) -> tuple[str, float]:
         """Name and elevation in B of the storey containing `element` ("" and 0 if none)."""
@@ -268,11 +303,10 @@ class ModelReader:
         come first, each part in the order of `solids`."""
         built, others = {}, []
         for element in [*elements, *solids]:
+            if not self._placeable(element):  # (a placement cycle: the geometry kernel would crash on it)
+                continue
             try:
                 parts = self._built(element)
-            except InputError as err:  # a placement cycle, on which the geometry kernel would crash
-                self.unreadable[element.id()] = str(err)
-                continue
             except Exception as err:  # a body the schema reader cannot follow (a broken reference, a
                 parts = None          # degenerate loop): the geometry kernel has its go at it
                 self.kernel_fallbacks.append(f"{element.GlobalId} ({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})")

@@ -62,6 +62,16 @@ def test_a_syntax_error_is_warned_about_not_lost_in_silence(house_text, tmp_path
     assert warnings and all(w.startswith("warning: m.ifc: ") for w in warnings[:5])
 
 
+def test_a_file_the_parser_refuses_names_the_line(house_text, tmp_path):
+    """The parser's own message says "check logs"; the log says what and where, in bytes."""
+    point = entity(house_text, "IFCCARTESIANPOINT")
+    text = house_text.replace(point, "#abc=" + point.split("=", 1)[1], 1)
+    (tmp_path / "m.ifc").write_text(text)
+    result = CliRunner().invoke(app, ["bim", str(tmp_path / "m.ifc"), "-o", str(tmp_path / "planes.json")])
+    line = text[:text.index("#abc=")].count("\n") + 1
+    assert_one_line_error(result, 3, f"token abc on line {line} invalid instance name")
+
+
 def test_a_file_damaged_beyond_its_walls_says_so_in_its_one_line(house_text, tmp_path):
     (tmp_path / "m.ifc").write_text(house_text.replace("IFCWALL(", "IFCWALX("))
     result = CliRunner().invoke(app, ["bim", str(tmp_path / "m.ifc"), "-o", str(tmp_path / "planes.json")])

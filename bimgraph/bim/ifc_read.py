@@ -78,8 +78,11 @@ def open_model(path) -> tuple[ifcopenshell.file, list[str]]:
         model = ifcopenshell.file.from_string(path.read_bytes()[len(_BOM):].decode("utf-8", "replace")) if bom \
             else ifcopenshell.open(str(path))
     except Exception as err:  # ifcopenshell raises several unrelated types on bad files
-        raise FormatError(f"{path}: cannot parse IFC ({str(err).splitlines()[0] if str(err) else type(err).__name__})") from None
-    problems = _parse_problems(wrapper.get_log())
+        # (its message says "check logs": the log says what and where)
+        logged = _with_lines(_parse_problems(wrapper.get_log()), path)
+        why = logged[0] if logged else (str(err).splitlines()[0] if str(err) else type(err).__name__)
+        raise FormatError(f"{path}: cannot parse IFC ({why})") from None
+    problems = _with_lines(_parse_problems(wrapper.get_log()), path)
     duplicates = [message for message in problems if message.startswith("Overwriting instance")]
     if duplicates:  # (the geometry kernel crashes on such a file)
         raise FormatError(f"{path}: two entities with one name ({duplicates[0]})")
@@ -111,6 +114,22 @@ def unbalanced_statement(path) -> int | None:
         else:  # a string or a comment: its own newlines count
             line += text.count(b"\n")
     return None
+
+
+_OFFSET = re.compile(r"at offset (\d+)")
+_NEWLINE = b"\n"
+
+
+def _with_lines(messages: list[str], path: Path) -> list[str]:
+    """The parser's messages with each byte offset named as the file's line."""
+    if not any(_OFFSET.search(m) for m in messages):
+        return messages
+    data = path.read_bytes()
+
+    def line(found: re.Match) -> str:
+        return f"on line {data.count(_NEWLINE, 0, int(found.group(1))) + 1}"
+
+    return [_OFFSET.sub(line, m) for m in messages]
 
 
 _MISSING_REFERENCE = re.compile(r"used by instance #(\d+) at attribute index (\d+)")

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import signal
 import warnings
 
 import typer
@@ -73,6 +74,9 @@ def friendly_errors(func):
     def wrapper(*args, **kwargs):
         from bimgraph.errors import BimgraphError
 
+        # a service manager's stop (systemd, docker stop, a ROS launch) as Ctrl-C: an online run
+        # then leaves its outputs consistent up to its last keyframe, as after Ctrl-C
+        signal.signal(signal.SIGTERM, _interrupt)
         try:
             # (numpy's floating-point warnings, on absurd input such as a pose 1e300 m away,
             # would print lines of source beside the one of the error its values then raise)
@@ -86,6 +90,10 @@ def friendly_errors(func):
             raise typer.Exit(130) from None
 
     return wrapper
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
 
 
 def console(stderr: bool = True):

@@ -380,3 +380,94 @@ def test_the_printed_sigmas_are_along_B():
     np.testing.assert_allclose(rot, [0.002, 0.001, 0.003])
     cov[0][0] = None  # (an early online keyframe's has no figures)
     assert np.isnan(sigmas_in_B(T_B_S, cov)[0][1])
+
+
+def test_a_keyframe_stopped_half_way_is_not_in_the_outputs(world, tmp_path):
+    """Ctrl-C inside a keyframe, once its observations went to the landmarks (here: after the
+    backend took it, before the writer did): the landmarks and associations written are those
+    of the keyframes the trajectories hold. They had held the half-done keyframe's
+    observations, and its new landmarks."""
+    from bimgraph.backend.results import OnlineWriter
+    from bimgraph.config import BackendConfig
+
+    scene, _ = world
+    backend = Backend(scene.plane_map, BackendConfig(), scene.initial)
+    writer = OnlineWriter(tmp_path, 1000)
+    for kf in scene.keyframes:
+        result = backend.process(kf)
+        # (a keyframe that a matched landmark saw, or that made a landmark)
+        if kf.index >= 10 and any((lm.face is not None or lm.anchor == kf.index) and (kf.index, 0) in lm.observations
+                                  for lm in backend.landmarks.current()):
+            stop = kf.index
+            break
+        writer.keyframe(result, backend)
+    writer.snapshot(backend, finished=False)
+    writer.close()
+    assert len(read_tum(tmp_path / "trajectory_bim.tum")[0]) == stop
+    landmarks = json.loads((tmp_path / "landmarks.json").read_text())["landmarks"]
+    associations = json.loads((tmp_path / "associations.json").read_text())["associations"]
+    assert max(lm["anchor"] for lm in landmarks) < stop
+    assert max(k for a in associations for k in a["keyframes"]) < stop
+    assert json.loads((tmp_path / "summary.json").read_text())["landmarks"] == len(landmarks)
+
+
+def test_sigterm_stops_a_run_as_ctrl_c_does(world, tmp_path):
+    """systemd, docker stop and ROS launch stop a process with SIGTERM: the run says so and
+    leaves its outputs consistent, as after Ctrl-C (it had died at once, without a summary)."""
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    _, root = world
+    out = tmp_path / "out"
+    process = subprocess.Popen([str(Path(sys.executable).parent / "bimgraph"), "run", str(root), "-o", str(out)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 60
+    while not (out / "trajectory_bim.tum").is_file() or len(read_tum(out / "trajectory_bim.tum")[0]) < 5:
+        assert process.poll() is None and time.time() < deadline, process.communicate()
+        time.sleep(0.05)
+    process.send_signal(signal.SIGTERM)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 130 and "interrupted" in stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["finished"] is False and summary["keyframes"] == len(read_tum(out / "trajectory_bim.tum")[0])
+
+
+def test_the_api_refuses_a_keyframe_that_does_not_follow_and_goes_on(world):
+    """A keyframe repeated or out of order is an InputError before the graph is touched (gtsam
+    had refused its key half-way, and every later keyframe after it); the backend goes on."""
+    from bimgraph.backend.offline import run_offline
+    from bimgraph.config import BackendConfig
+    from bimgraph.errors import InputError
+
+    scene, _ = world
+    backend = Backend(scene.plane_map, BackendConfig(), scene.initial)
+    for kf in scene.keyframes[:20]:
+        backend.process(kf)
+    for bad in (scene.keyframes[19], scene.keyframes[5], scene.keyframes[20].model_copy(update={"stamp": scene.keyframes[19].stamp})):
+        with pytest.raises(InputError, match="does not follow keyframe 19"):
+            backend.process(bad)
+    with pytest.raises(InputError, match="not finite"):
+        backend.process(scene.keyframes[20].model_copy(update={"T_S_C": (float("nan"),) + tuple(scene.keyframes[20].T_S_C[1:])}))
+    assert backend.process(scene.keyframes[20]).index == 20
+    with pytest.raises(InputError, match="no keyframes"):
+        run_offline([], scene.plane_map, BackendConfig(), scene.initial)
+
+
+def test_an_unfinished_runs_report_is_not_read(world, tmp_path):
+    """A run killed while it wrote its deviation report left part of one, beside a summary
+    that does not say it finished: `view` and the printout read no report then."""
+    from bimgraph.viewer.session import deviation_report
+
+    _, root = world
+    out = tmp_path / "out"
+    assert run(root, "-o", out, "--mode", "offline").exit_code == 0
+    assert deviation_report(out) is not None
+    summary = json.loads((out / "summary.json").read_text())
+    (out / "summary.json").write_text(json.dumps({**summary, "finished": False}))
+    assert deviation_report(out) is None
+    (out / "landmarks.json.tmp").write_text("{")  # (a kill while it wrote one)
+    assert run(root, "-o", out, "--mode", "offline").exit_code == 0
+    assert not (out / "landmarks.json.tmp").exists()

@@ -45,6 +45,7 @@ from bimgraph.backend.robust_alignment import RobustAlignment
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig
 from bimgraph.deviations.estimate import RivalAlignment, about_estimate
+from bimgraph.errors import InputError
 from bimgraph.geometry import inverse, plane_from_frame
 from bimgraph.sequence.format import Keyframe
 from factors.plane import predict_local_plane
@@ -86,6 +87,8 @@ class OfflineEstimator:
         self._losing_verdicts: dict[tuple[int, str], str] | None = None  # the consensus that lost it
 
     def run(self, keyframes: list[Keyframe]) -> Results:
+        if not keyframes:
+            raise InputError("no keyframes to estimate from")
         start = time.perf_counter()
         for kf in keyframes:
             self.online.advance(kf)

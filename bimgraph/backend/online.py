@@ -3,6 +3,7 @@ triggers, emitting the causal `T_B_C` and `T_B_S` (with covariance) after every 
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Mapping
 
@@ -23,6 +24,7 @@ from bimgraph.backend.online_bim import OnlineBimAssociation
 from bimgraph.backend.online_judgement import OnlineJudgement
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig, Isam2Config
+from bimgraph.errors import InputError
 from bimgraph.sequence.format import Keyframe
 
 Oracle = Mapping[tuple[int, int], "str | None"]
@@ -114,6 +116,7 @@ class Backend:
         """The keyframe into the graph, associated and updated, without a result (for a caller
         that reads none: the offline estimator's causal pass). Returns its observations, the
         landmark each went to, and the estimates of its pose, the extrinsic and those landmarks."""
+        self._check_follows(kf)
         k = kf.index
         T_S_C_guess = self._add_pose(kf)
         observations = observations_of(kf, self.build)
@@ -192,6 +195,16 @@ class Backend:
         return unobservable_directions(normals_B, self.cfg.unobservable_min_angle_deg, self.gravity_aligned)
 
     # -- pieces -----------------------------------------------------------------------------
+    def _check_follows(self, kf: Keyframe) -> None:
+        """InputError, before the graph is touched, for a keyframe that does not follow the
+        last (gtsam would refuse its pose's key, and the graph would hold half of it) or whose
+        pose is not finite (`Keyframe`'s own checks pass by where a caller sets fields)."""
+        if self._keyframes and (kf.index <= (last := self._keyframes[-1]).index or kf.stamp <= last.stamp):
+            raise InputError(f"keyframe {kf.index} (stamp {kf.stamp}) does not follow keyframe {last.index} "
+                             f"(stamp {last.stamp}): indices and stamps must increase")
+        if not all(math.isfinite(v) for v in kf.T_S_C):
+            raise InputError(f"keyframe {kf.index}: T_S_C {list(kf.T_S_C)} is not finite")
+
     def _add_pose(self, kf: Keyframe) -> np.ndarray:
         self._keyframes.append(kf)
         if self._previous is None:

@@ -163,6 +163,7 @@ def clear_previous_run(out_dir: Path) -> None:
     the earlier run's beside its own as if they were its own. (`out_dir` is a folder: `run`
     made sure of it.)"""
     _remove(out_dir, _RUN_FILES)
+    _remove(out_dir, [name + ".tmp" for name in _RUN_FILES])  # (a run killed while it wrote one)
 
 
 def _remove(out_dir: Path, names) -> None:

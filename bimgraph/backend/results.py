@@ -8,6 +8,7 @@ run that dies leaves every file valid and consistent up to some keyframe.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -253,6 +254,23 @@ class TumAppender:
         self._fh.close()
 
 
+def _as_of(landmarks: list[Landmark], last: int) -> list[Landmark]:
+    """The landmarks as keyframe `last` left them, in their observations: a keyframe stopped
+    half-way (Ctrl-C) may have added its own, and landmarks of its own, which the
+    trajectories, ending at `last`, do not hold."""
+    out = []
+    for lm in landmarks:
+        kept = [n for n, (k, _) in enumerate(lm.observations) if k <= last]
+        if not kept:
+            continue
+        if len(kept) < len(lm.observations):
+            faces = lm.observation_faces
+            lm = replace(lm, observations=[lm.observations[n] for n in kept], centres_A=[lm.centres_A[n] for n in kept],
+                         observation_faces=None if faces is None else [faces[n] for n in kept])
+        out.append(lm)
+    return out
+
+
 class OnlineWriter:
     """Writes an online run's outputs incrementally (see the module docstring)."""
 
@@ -278,11 +296,11 @@ class OnlineWriter:
             self.snapshot(backend, finished=False)
 
     def snapshot(self, backend, finished: bool, timings: dict | None = None) -> None:
-        landmarks = backend.landmarks.current()
         if self.last is None:  # (stopped at its first keyframe: a summary that says so, and nothing else)
             write_json(self.out / SUMMARY, summary_record("online", timings or {}, [], 0, [], finished, inputs=self.inputs))
             return
         backend.resolve_faces(self.last.T_B_S)
+        landmarks = _as_of(backend.landmarks.current(), self.last.index)
         write_json(self.out / EXTRINSIC, extrinsic_record(self.last.T_B_S, self._covariance(backend), backend.unobservable(),
                                                           self.last.index))
         write_json(self.out / ASSOCIATIONS, associations_record(landmarks))

@@ -40,11 +40,16 @@ def open_viewer(seq_dir: Path, meta: SequenceMeta, plane_map: PlaneMap, T_B_S_in
 
 
 def deviation_report(out_dir: Path):
-    """The run's deviation report (`DeviationsFile`), None if it wrote none."""
+    """The run's deviation report (`DeviationsFile`), None if it wrote none, or if its summary
+    does not say it finished: a run writes its report before it says so, and one killed while
+    it wrote the report left part of one."""
+    from bimgraph.backend.results import SUMMARY, load_summary
     from bimgraph.deviations.report import JSON_FILE, load_deviations
 
-    path = Path(out_dir) / JSON_FILE
-    return load_deviations(path) if path.is_file() else None
+    path, summary = Path(out_dir) / JSON_FILE, Path(out_dir) / SUMMARY
+    if not path.is_file() or not summary.is_file() or not load_summary(summary).finished:
+        return None
+    return load_deviations(path)
 
 
 def face_statuses(report) -> dict[str, str]:

@@ -19,6 +19,8 @@ from bimgraph.sequence.format import Keyframe
 
 # the components of a Pose3 residual: rotation (3), then translation (3)
 _POSE_GROUPS = (0, 0, 0, 1, 1, 1)
+# a step whose given covariance's trace is this many times the walk's median is a jump
+_JUMP = 100.0
 # the steps whose poses are marginalised onto at once (one elimination each; their joint
 # marginal is dense, so not the whole walk's at once)
 _STEPS_AT_ONCE = 25
@@ -85,9 +87,17 @@ class OdometryModel:
             self._factors[kf.index] = self.build.odometry(previous.index, kf.index, self.step(previous, kf), self._cov(kf))
         return self._factors[kf.index]
 
+    def regular(self, keyframes: list[Keyframe]) -> np.ndarray:
+        """Per step (into each keyframe but the first), whether its given noise is the walk's
+        usual: a step the front-end gives a covariance `_JUMP` times the median's or more (a
+        relocalisation, a jump it knows of) is no part of a drift, which is steady."""
+        traces = np.array([np.trace(self._given_cov(kf)) for kf in keyframes[1:]])
+        return traces < _JUMP * np.median(traces) if len(traces) else np.zeros(0, dtype=bool)
+
     def step_sigmas(self, keyframes: list[Keyframe]) -> tuple[float, float]:
-        """The noise per step and axis, rotation (rad) and translation (m), on average."""
-        steps = keyframes[1:] or keyframes  # (a walk of one keyframe has no step: the noise as given)
+        """The noise per step and axis, rotation (rad) and translation (m), on average over the
+        `regular` steps."""
+        steps = [kf for kf, usual in zip(keyframes[1:], self.regular(keyframes)) if usual] or keyframes[:1]
         diag = np.array([self._given_cov(kf) for kf in steps]).diagonal(axis1=1, axis2=2).mean(axis=0) \
             * np.repeat(self.variance, 3)
         return float(np.sqrt(diag[:3].mean())), float(np.sqrt(diag[3:].mean()))

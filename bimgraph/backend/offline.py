@@ -244,7 +244,8 @@ class OfflineEstimator:
         settle = drift.Settle()
         for _ in range(cfg.drift_iterations):
             fitted = drift.estimate(frontend, [values.atPose3(X(kf.index)).matrix() for kf in keyframes],
-                                    self.odometry.step_sigmas(keyframes), cfg.drift_probability)
+                                    self.odometry.step_sigmas(keyframes), cfg.drift_probability,
+                                    self.odometry.regular(keyframes))
             rates = settle.next(self.odometry.drift, fitted)
             if not rates.differs(self.odometry.drift, cfg.drift_rtol):
                 break

@@ -232,7 +232,8 @@ class Backend:
         cfg = self.cfg.offline
         fitted = drift.estimate([self.odometry.pose(kf) for kf in self._keyframes],
                                 [estimate.atPose3(X(kf.index)).matrix() for kf in self._keyframes],
-                                self.odometry.step_sigmas(self._keyframes), cfg.drift_probability)
+                                self.odometry.step_sigmas(self._keyframes), cfg.drift_probability,
+                                self.odometry.regular(self._keyframes))
         if not fitted.differs(self.odometry.drift, cfg.drift_rtol):
             return False
         self.odometry.drift = fitted

@@ -1,5 +1,5 @@
-"""A room's clear width between two of its walls facing each other, as built against plan, with
-its uncertainty. Pure maths, no I/O.
+"""A room's clear width between two of its walls facing each other, and a wall's thickness
+between its two sides, as built against plan, with their uncertainty. Pure maths, no I/O.
 
 Each wall's offset is measured against the alignment (`estimate.face_deviation`); the width
 between two facing walls is the planned one less both offsets (each positive into the room),
@@ -9,6 +9,8 @@ walls' normal moves one offset up and the other down by as much: it cancels, and
 of its uncertainty. Where the alignment itself is in doubt (two parallel walls alone place the
 walk, one of them built off plan: a contest), the walls' verdicts are too, but the width
 between them is measured as surely as anywhere: "the room is 6 cm narrower than planned".
+A wall's thickness is the planned one plus both offsets, alike; its two sides are seen from
+two rooms, so its sigma carries how well the walk places one room against the other.
 """
 
 from __future__ import annotations
@@ -149,7 +151,7 @@ def distance_between(a: BimFace, b: BimFace, plane_a: ObservedPlane, plane_b: Ob
     if not variance > 0:  # (the two factors were all that placed it: rounding left nothing)
         return None
     planned = side * 0.5 * (float(point_plane_distance(np.asarray(b.centre), a.plane))
-                     + float(point_plane_distance(np.asarray(a.centre), b.plane)))
+                            + float(point_plane_distance(np.asarray(a.centre), b.plane)))
     return planned, planned + float(change), float(np.sqrt(variance))
 
 

@@ -10,6 +10,7 @@ import copy
 import gtsam
 import numpy as np
 
+from bimgraph.backend import drift
 from bimgraph.backend.drift import DriftRates
 from bimgraph.backend.graph import FactorBuilder, X
 from bimgraph.backend.marginals import JointMarginals
@@ -94,10 +95,18 @@ class OdometryModel:
         traces = np.array([np.trace(self._given_cov(kf)) for kf in keyframes[1:]])
         return traces < _JUMP * np.median(traces) if len(traces) else np.zeros(0, dtype=bool)
 
-    def step_sigmas(self, keyframes: list[Keyframe]) -> tuple[float, float]:
+    def fitted_drift(self, keyframes: list[Keyframe], T_S_C_smoothed: list[np.ndarray], probability: float) -> DriftRates:
+        """The drift rates the smoothed poses of `keyframes` show against the front-end's
+        (`drift.estimate`, significant at `probability`), from its `regular` steps."""
+        regular = self.regular(keyframes)
+        return drift.estimate([self.pose(kf) for kf in keyframes], T_S_C_smoothed, self.step_sigmas(keyframes, regular),
+                              probability, regular)
+
+    def step_sigmas(self, keyframes: list[Keyframe], regular: np.ndarray | None = None) -> tuple[float, float]:
         """The noise per step and axis, rotation (rad) and translation (m), on average over the
-        `regular` steps."""
-        steps = [kf for kf, usual in zip(keyframes[1:], self.regular(keyframes)) if usual] or keyframes[:1]
+        `regular` steps (computed here if not given)."""
+        regular = self.regular(keyframes) if regular is None else regular
+        steps = [kf for kf, usual in zip(keyframes[1:], regular) if usual] or keyframes[:1]
         diag = np.array([self._given_cov(kf) for kf in steps]).diagonal(axis1=1, axis2=2).mean(axis=0) \
             * np.repeat(self.variance, 3)
         return float(np.sqrt(diag[:3].mean())), float(np.sqrt(diag[3:].mean()))

@@ -240,12 +240,10 @@ class OfflineEstimator:
         and re-solve until they settle; then, once a round, fit its noise to the smoothed steps.
         The graph and estimate it ends with."""
         cfg = self.cfg.offline
-        frontend = [self.odometry.pose(kf) for kf in keyframes]
         settle = drift.Settle()
         for _ in range(cfg.drift_iterations):
-            fitted = drift.estimate(frontend, [values.atPose3(X(kf.index)).matrix() for kf in keyframes],
-                                    self.odometry.step_sigmas(keyframes), cfg.drift_probability,
-                                    self.odometry.regular(keyframes))
+            fitted = self.odometry.fitted_drift(keyframes, [values.atPose3(X(kf.index)).matrix() for kf in keyframes],
+                                                cfg.drift_probability)
             rates = settle.next(self.odometry.drift, fitted)
             if not rates.differs(self.odometry.drift, cfg.drift_rtol):
                 break

@@ -13,7 +13,6 @@ import numpy as np
 from bimgraph.backend.alignment import Alignment, levelled, lock_directions, unlocked_covariance, unobservable_directions
 from bimgraph.backend.associate_bim import FaceIndex
 from bimgraph.backend.associate_slam import Observation, SlamAssociator
-from bimgraph.backend import drift
 from bimgraph.backend.depth_tilt import DepthTilt
 from bimgraph.backend.graph import MOVED_ANCHOR, TILT, E, L, X, FactorBuilder, cov_T_B_S, pose3
 from bimgraph.backend.incremental import FrozenPlane, IncrementalGraph
@@ -25,7 +24,7 @@ from bimgraph.backend.online_judgement import OnlineJudgement
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig, Isam2Config
 from bimgraph.errors import InputError
-from bimgraph.sequence.format import Keyframe
+from bimgraph.sequence.format import Keyframe, out_of_order
 
 Oracle = Mapping[tuple[int, int], "str | None"]
 
@@ -199,7 +198,7 @@ class Backend:
         """InputError, before the graph is touched, for a keyframe that does not follow the
         last (gtsam would refuse its pose's key, and the graph would hold half of it) or whose
         pose is not finite (`Keyframe`'s own checks pass by where a caller sets fields)."""
-        if self._keyframes and (kf.index <= (last := self._keyframes[-1]).index or kf.stamp <= last.stamp):
+        if self._keyframes and out_of_order(last := self._keyframes[-1], kf):
             raise InputError(f"keyframe {kf.index} (stamp {kf.stamp}) does not follow keyframe {last.index} "
                              f"(stamp {last.stamp}): indices and stamps must increase")
         if not all(math.isfinite(v) for v in kf.T_S_C):
@@ -230,10 +229,8 @@ class Backend:
         since the graph grows between fits). Whether they changed."""
         estimate = self.graph.estimate([X(kf.index) for kf in self._keyframes])  # (not the frozen copies)
         cfg = self.cfg.offline
-        fitted = drift.estimate([self.odometry.pose(kf) for kf in self._keyframes],
-                                [estimate.atPose3(X(kf.index)).matrix() for kf in self._keyframes],
-                                self.odometry.step_sigmas(self._keyframes), cfg.drift_probability,
-                                self.odometry.regular(self._keyframes))
+        smoothed = [estimate.atPose3(X(kf.index)).matrix() for kf in self._keyframes]
+        fitted = self.odometry.fitted_drift(self._keyframes, smoothed, cfg.drift_probability)
         if not fitted.differs(self.odometry.drift, cfg.drift_rtol):
             return False
         self.odometry.drift = fitted

@@ -204,6 +204,14 @@ def load_meta(root: Path, ignore: tuple[str, ...] = ()) -> SequenceMeta:
     return parse_model(SequenceMeta, data, str(path))
 
 
+def out_of_order(previous: Keyframe, kf: Keyframe) -> str | None:
+    """The field ("index", "stamp") in which `kf` does not follow `previous`, or None: both
+    increase (the outputs are trajectories in time)."""
+    if kf.index <= previous.index:
+        return "index"
+    return "stamp" if kf.stamp <= previous.stamp else None
+
+
 def iter_keyframes(root: Path):
     """Yield keyframes one by one, validating each line as it comes."""
     path = existing_file(Path(root) / KEYFRAMES_FILE)
@@ -214,10 +222,8 @@ def iter_keyframes(root: Path):
                 continue
             where = f"{path}: line {lineno}"
             kf = parse_model(Keyframe, parse_json(line, where), where)
-            if previous is not None and kf.index <= previous.index:
-                raise FormatError(f"{where}: index: {kf.index} does not follow {previous.index}")
-            if previous is not None and kf.stamp <= previous.stamp:  # (the outputs are trajectories in time)
-                raise FormatError(f"{where}: stamp: {kf.stamp} does not follow {previous.stamp}")
+            if previous is not None and (field := out_of_order(previous, kf)):
+                raise FormatError(f"{where}: {field}: {getattr(kf, field)} does not follow {getattr(previous, field)}")
             previous = kf
             yield kf
 

@@ -14,7 +14,7 @@ import shapely
 from shapely.ops import nearest_points, polylabel
 
 from bimgraph.bim.planemap import BimFace, PlaneMap
-from bimgraph.geometry import plane_frame, plane_shape
+from bimgraph.deviations.visibility import face_shape
 
 # how far inside the face's edges and openings its target lies, where the face is wide enough
 TARGET_MARGIN_M = 0.25
@@ -25,8 +25,7 @@ _FREE_FRACTION = 0.8
 def face_target(face: BimFace, margin_m: float = TARGET_MARGIN_M) -> np.ndarray:
     """The point of the face's material nearest its centre that lies `margin_m` inside its
     edges and openings; on a face too narrow for that margin, the point farthest from them."""
-    shape = plane_shape(face.plane, face.polygon, face.holes)
-    origin, basis = plane_frame(face.plane)
+    shape, origin, basis = face_shape(face)
     centre = shapely.Point((np.asarray(face.centre, dtype=float) - origin) @ basis)
     inner = shape.buffer(-margin_m)
     if inner.is_empty:
@@ -48,9 +47,8 @@ def first_hit(plane_map: PlaneMap, start: np.ndarray, direction: np.ndarray, max
         t = -(planes[:, :3] @ start + planes[:, 3]) / along
     order = np.argsort(t)
     for i in order[(t[order] > 1e-6) & (t[order] < max_m)]:
-        face = plane_map.faces[i]
-        origin, basis = plane_frame(face.plane)
-        if plane_shape(face.plane, face.polygon).convex_hull.covers(shapely.Point((start + t[i] * direction - origin) @ basis)):
+        shape, origin, basis = face_shape(plane_map.faces[i])
+        if shape.convex_hull.covers(shapely.Point((start + t[i] * direction - origin) @ basis)):
             return float(t[i])
     return max_m
 

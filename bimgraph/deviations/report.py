@@ -202,6 +202,14 @@ def load_deviations(path: Path) -> DeviationsFile:
     return parse_model(DeviationsFile, data, str(path))
 
 
+def run_report(out_dir: Path, finished: bool) -> DeviationsFile | None:
+    """A run's deviation report from its output folder, None if it wrote none or did not
+    finish (`finished`, its summary's): a run writes its report before it says it finished, and
+    one killed while it wrote the report left part of one."""
+    path = Path(out_dir) / JSON_FILE
+    return load_deviations(path) if finished and path.is_file() else None
+
+
 def read_csv_rows(path: Path) -> list[dict[str, str]]:
     """The CSV's rows as strings, for checks and spreadsheets' round trips."""
     path = existing_file(path)

@@ -13,7 +13,7 @@ from bimgraph.backend.pipeline import initial_alignment, load_model, model_path,
 from bimgraph.backend.results import (ASSOCIATIONS, EXTRINSIC, METRICS, SUMMARY, TRAJECTORY_BIM, check_stamps,
                                       load_associations, load_extrinsic, load_summary)
 from bimgraph.config import Config
-from bimgraph.deviations.report import FACE_STATUSES, JSON_FILE as DEVIATIONS_JSON, WIDTH_STATUSES, load_deviations
+from bimgraph.deviations.report import FACE_STATUSES, WIDTH_STATUSES, run_report
 from bimgraph.errors import FormatError, InputError
 from bimgraph.evaluation.baselines import estimate_extrinsics, matched_planes
 from bimgraph.evaluation.evaluate import Estimate, evaluate
@@ -137,8 +137,7 @@ def run_summary(out_dir: Path) -> list[tuple[str, str]]:
         rival = "" if challenge.rival_probability is None else f", {100 * challenge.rival_probability:.2g} % likely"
         rows.append(("alignment", f"{taken} by {challenge.margin:.1f} ({len(challenge.contested_faces)} faces "
                                   f"judged otherwise there{rival})"))
-    if (out_dir / DEVIATIONS_JSON).is_file():
-        deviations = load_deviations(out_dir / DEVIATIONS_JSON)
+    if (deviations := run_report(out_dir, summary.finished)) is not None:
         counts = deviations.counts()
         rows.append(("walls", ", ".join(f"{counts.get(k, 0)} {k.replace('_', ' ')}" for k in FACE_STATUSES)
                      + f"; {counts['unplanned']} unplanned planes"))

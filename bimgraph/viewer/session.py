@@ -40,16 +40,13 @@ def open_viewer(seq_dir: Path, meta: SequenceMeta, plane_map: PlaneMap, T_B_S_in
 
 
 def deviation_report(out_dir: Path):
-    """The run's deviation report (`DeviationsFile`), None if it wrote none, or if its summary
-    does not say it finished: a run writes its report before it says so, and one killed while
-    it wrote the report left part of one."""
+    """The run's deviation report (`DeviationsFile`), None if it wrote none or its summary does
+    not say it finished (`deviations.report.run_report`)."""
     from bimgraph.backend.results import SUMMARY, load_summary
-    from bimgraph.deviations.report import JSON_FILE, load_deviations
+    from bimgraph.deviations.report import run_report
 
-    path, summary = Path(out_dir) / JSON_FILE, Path(out_dir) / SUMMARY
-    if not path.is_file() or not summary.is_file() or not load_summary(summary).finished:
-        return None
-    return load_deviations(path)
+    summary = Path(out_dir) / SUMMARY
+    return run_report(out_dir, summary.is_file() and load_summary(summary).finished)
 
 
 def face_statuses(report) -> dict[str, str]:

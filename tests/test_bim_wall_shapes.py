@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from ifc_house import H, T, add_opening, body_of, edited_house, house, wall_named
 
-from bimgraph.bim.building import Building, Storey
+from bimgraph.bim.building import Building, Storey, Wall
 from bimgraph.bim.ifc_import import import_ifc
 from bimgraph.bim.ifc_write import write_ifc
 from bimgraph.config import BimImportConfig
@@ -58,6 +58,33 @@ def test_internal_layer_faces_are_not_faces(tmp_path):
     assert sorted(f.offset for f in faces) == pytest.approx([-T / 2, -T / 2])  # x = -0.15 and x = 0.15
     assert sorted(round(f.normal[0]) for f in faces) == [-1, 1]  # one face on each side, not one twice
     assert sum(f.area for f in faces) == pytest.approx(2 * (6 - T) * H)
+
+
+def test_a_wall_along_a_face_hides_it_and_a_wall_across_does_not(tmp_path):
+    """A lining modelled as a wall of its own (Revit's furring) over part of the kitchen side
+    of W0: W0's face loses the part behind it, the lining's back face (against W0) is gone,
+    its front face stays. I0 butts across S0 and N0, whose faces stay whole."""
+    import dataclasses
+
+    from ifc_house import expected_faces
+
+    building = house()
+    lining = Wall("L0", (T / 2 + 0.025, 2.0), (T / 2 + 0.025, 4.0), 0.05, H)
+    building.walls.append(lining)
+    path = tmp_path / "lining.ifc"
+    write_ifc(building, path)
+    plane_map, _ = import_ifc(path, BimImportConfig())
+    area = {}
+    for f in plane_map.faces:
+        key = (f.wall_name, round(f.normal[0]), round(f.normal[1]))
+        area[key] = area.get(key, 0.0) + f.area
+    assert area[("W0", 1, 0)] == pytest.approx((6 - T - 2.0) * H)
+    assert area[("L0", 1, 0)] == pytest.approx(2.0 * H) and ("L0", -1, 0) not in area
+    unlined = expected_faces(dataclasses.replace(building, walls=[w for w in building.walls if w is not lining]))
+    for name, normal in (("S0", (0, 1)), ("N0", (0, -1))):
+        side = next(region for (wall, _), (face, region) in unlined.items()
+                    if wall == name and tuple(np.round(face.normal[:2]).astype(int)) == normal)
+        assert area[(name, *normal)] == pytest.approx(side.area)
 
 
 def test_components_agree_with_scipy():
@@ -175,10 +202,35 @@ def test_wall_without_side_face_is_warned_about_and_skipped(tmp_path, shape):
     wall = wall_named(edited_house(tmp_path / "faceless.ifc", faceless), "E0")
     messages = []
     plane_map, _ = import_ifc(tmp_path / "faceless.ifc", BimImportConfig(), log=messages.append)
+    if shape == "leaning":
+        assert "lean up to 10.0 deg out of vertical" in messages.pop(0)
     assert len(messages) == 1 and wall.GlobalId in messages[0] and "(E0)" in messages[0]
     assert "no side face" in messages[0] and "skipped" in messages[0]
     assert "E0" not in {f.wall_name for f in plane_map.faces}
     assert len(plane_map.faces) == 18  # the other 8 walls, as when E0's geometry fails
+
+
+def test_a_battered_side_is_warned_about_and_the_vertical_one_kept(tmp_path):
+    """E0 as a retaining wall's batter: 0.3 m thick at its foot, 0.1 m at its top, the outer
+    side vertical, the inner one leaning 3.8 degrees. The leaning side is no plane the
+    backend can use as vertical; it is left out, and said so."""
+    def battered(model):
+        body = body_of(wall_named(model, "E0"))
+        profile = model.createIfcArbitraryClosedProfileDef("AREA", None, model.createIfcPolyline(
+            [model.createIfcCartesianPoint(p) for p in ((-T / 2, 0.0), (T / 2, 0.0), (-T / 2 + 0.1, H), (-T / 2, H), (-T / 2, 0.0))]))
+        along_x = model.createIfcAxis2Placement3D(model.createIfcCartesianPoint((0.0, 0.0, 0.0)),
+                                                  model.createIfcDirection((1.0, 0.0, 0.0)), model.createIfcDirection((0.0, 1.0, 0.0)))
+        body.Items = [model.createIfcExtrudedAreaSolid(profile, along_x, model.createIfcDirection((0.0, 0.0, 1.0)), 6 - T)]
+
+    wall = wall_named(edited_house(tmp_path / "battered.ifc", battered), "E0")
+    messages = []
+    plane_map, _ = import_ifc(tmp_path / "battered.ifc", BimImportConfig(), log=messages.append)
+    (message,) = messages
+    leaning = (6 - T) * np.hypot(H, T - 0.1)
+    assert wall.GlobalId in message and f"{leaning:.2f} m2" in message
+    assert f"{np.degrees(np.arctan2(T - 0.1, H)):.1f} deg" in message
+    kept = [f for f in plane_map.faces if f.wall_name == "E0"]
+    assert kept and all(f.normal[0] > 0.99 for f in kept)  # the outer side, x = 10.15
 
 
 def test_slab_without_faces_is_warned_about_and_skipped(tmp_path):

@@ -199,6 +199,20 @@ def vertical_faces(V, T, vertical_tol_rad: float, angle_tol_rad: float, distance
     return faces
 
 
+def sloped_sides(V, T, vertical_tol_rad: float, along, along_tol_rad: float, steepest_rad: float) -> tuple[float, float]:
+    """(area, largest slope from vertical in radians) of the triangles of a solid that would
+    be side faces (across one of the `along` directions) but lean more than
+    `vertical_tol_rad` and less than `steepest_rad` out of vertical: faces the import leaves
+    out, which must not go unnoticed."""
+    normals, areas = triangle_normals(np.asarray(V, dtype=float), np.asarray(T, dtype=int).reshape(-1, 3))
+    slope = np.arcsin(np.minimum(np.abs(normals[:, 2]), 1.0))
+    leaning = (slope >= vertical_tol_rad) & (slope < steepest_rad) & (areas > 0)
+    horizontal = normals[leaning] * [1, 1, 0]
+    across = is_side_face(horizontal / np.linalg.norm(horizontal, axis=1)[:, None], along, along_tol_rad)
+    area = float(areas[leaning][across].sum())
+    return area, float(slope[leaning][across].max()) if area > 0 else 0.0
+
+
 def horizontal_faces(V, T, tol_rad: float, distance_tol: float, grid: float) -> list[Face]:
     """The exposed horizontal faces of a closed triangulated solid (tops, normal +z, and
     bottoms, -z), as `vertical_faces` finds the vertical ones."""
@@ -276,11 +290,11 @@ def long_axis(V: np.ndarray) -> np.ndarray:
     return np.append(longest / np.linalg.norm(longest), 0.0)
 
 
-def is_side_face(normal: np.ndarray, axis_directions, angle_tol_rad: float) -> bool:
-    """Whether a wall's face of unit `normal` is a side face: side faces run along the wall's
-    axis (along one of its segments); its ends, the steps of its profile and the faces where
-    it is mitred to another wall do not."""
-    return any(abs(normal @ a) < np.sin(angle_tol_rad) for a in axis_directions)
+def is_side_face(normal: np.ndarray, axis_directions, angle_tol_rad: float):
+    """Whether a wall's face of unit `normal` is a side face (or, for unit normals k x 3,
+    which are): side faces run along the wall's axis (along one of its segments); its ends,
+    the steps of its profile and the faces where it is mitred to another wall do not."""
+    return (np.abs(np.asarray(normal) @ np.asarray(axis_directions, dtype=float).T) < np.sin(angle_tol_rad)).any(axis=-1)
 
 
 def plane_section(V, T, face: Face, depth: float) -> object:

@@ -26,6 +26,9 @@ from bimgraph.geometry import pose_to_tum
 
 # the parser's problems with a file listed one by one; the rest counted
 _PARSE_WARNINGS = 5
+# A wall's face leaning further than this out of vertical is where a roof cuts it, not a
+# side of it that the import left out.
+_LEANING_RAD = np.radians(30.0)
 
 ORIGIN = ("the IfcBuilding's placement (its local coordinate system; the project's world "
           "coordinate system if there is no IfcBuilding), metres, z up")
@@ -112,7 +115,7 @@ def _wall_faces(reader: ModelReader, walls, meshes, voids, solids, cfg, log, pro
     per_wall = {}
     for done, wall in enumerate(walls, start=1):
         try:
-            per_wall[wall.id()] = (wall, _sides(reader, wall, meshes[wall.id()], cfg, angle_tol, axis_tol))
+            per_wall[wall.id()] = (wall, _sides(reader, wall, meshes[wall.id()], cfg, angle_tol, axis_tol, log))
         except Exception as err:  # a geometry this reader cannot follow: the rest goes on
             reader.unreadable[wall.id()] = (f"its geometry cannot be read "
                                             f"({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})")
@@ -120,11 +123,13 @@ def _wall_faces(reader: ModelReader, walls, meshes, voids, solids, cfg, log, pro
     for opening in (o for wall, _ in per_wall.values() for o in voids[wall.id()] if o.id() not in solids):
         log(f"warning: opening {opening.GlobalId} has no geometry; its wall keeps the area")
 
+    linings = _Linings(per_wall, meshes, axis_tol, cfg.lining_gap_m)
     out = []
     for done, (wall, sides) in enumerate(per_wall.values(), start=1):
         openings = [m for o in voids[wall.id()] for m in solids.get(o.id(), [])]
         for face, depth in sides:
             holes = [F.plane_section(o.V, o.T, face, cfg.opening_slice_depth_m) for o in openings]
+            holes += [F.plane_section(m.V, m.T, face, -cfg.lining_gap_m) for m in linings.over(face, wall)]
             holes = [h for h in holes if not h.is_empty]
             if holes:
                 face.region = face.region.difference(shapely.union_all(holes, grid_size=cfg.grid_m), grid_size=cfg.grid_m)
@@ -134,8 +139,37 @@ def _wall_faces(reader: ModelReader, walls, meshes, voids, solids, cfg, log, pro
     return out
 
 
-def _sides(reader: ModelReader, wall, mesh, cfg, angle_tol: float, axis_tol: float) -> list[tuple[F.Face, float]]:
-    """A wall's side faces (before openings), each with the depth of the wall behind it."""
+class _Linings:
+    """Which other walls run along a face (a side of theirs parallel to it) and cross the
+    plane `gap` in front of it. Where one fills that plane, the face is hidden: behind a
+    lining, furring or cladding modelled as a wall of its own (Revit's way), or inside a wall
+    that overlaps it. A wall across the face, butting on it at a junction, leaves it as it
+    is: what is hidden there is a strip, and the rooms split the face there."""
+
+    def __init__(self, per_wall: dict, meshes, angle_tol: float, gap: float):
+        self.walls = [wall for wall, _ in per_wall.values()]
+        self.meshes, self.cos_tol, self.gap = [meshes[wall.id()] for wall in self.walls], np.cos(angle_tol), gap
+        self.low = np.array([mesh.V.min(axis=0) for mesh in self.meshes]).reshape(-1, 3)
+        self.high = np.array([mesh.V.max(axis=0) for mesh in self.meshes]).reshape(-1, 3)
+        self.normals = [np.array([side.normal for side, _ in sides]).reshape(-1, 3) for _, sides in per_wall.values()]
+
+    def over(self, face: F.Face, wall) -> list:
+        u0, v0, u1, v1 = face.region.bounds
+        corners = face.to_3d(np.array([[u0, v0], [u1, v1]]))
+        near = ((self.low <= corners.max(axis=0) + self.gap) & (self.high >= corners.min(axis=0) - self.gap)).all(axis=1)
+        out = []
+        for k in np.flatnonzero(near):
+            if self.walls[k] is wall or not (np.abs(self.normals[k] @ face.normal) > self.cos_tol).any():
+                continue
+            distances = self.meshes[k].V @ face.normal + face.offset
+            if distances.min() < self.gap < distances.max():
+                out.append(self.meshes[k])
+        return out
+
+
+def _sides(reader: ModelReader, wall, mesh, cfg, angle_tol: float, axis_tol: float, log) -> list[tuple[F.Face, float]]:
+    """A wall's side faces (before openings), each with the depth of the wall behind it; a
+    side leaning out of vertical is left out, and said so through `log`."""
     axis = reader.axis(wall, mesh.T_B_E)
     steps = np.diff(axis, axis=0) if axis is not None else np.empty((0, 2))
     steps = steps[np.linalg.norm(steps, axis=1) > 1e-9]
@@ -145,6 +179,11 @@ def _sides(reader: ModelReader, wall, mesh, cfg, angle_tol: float, axis_tol: flo
     along = [np.append(steps[0] / np.linalg.norm(steps[0]), 0.0)] if len(steps) else [F.long_axis(mesh.V)]
     found = F.vertical_faces(mesh.V, mesh.T, np.radians(cfg.vertical_tol_deg), angle_tol,
                              cfg.coplanar_distance_m, cfg.grid_m, along if straight else None, axis_tol)
+    if straight:
+        area, slope = F.sloped_sides(mesh.V, mesh.T, np.radians(cfg.vertical_tol_deg), along, axis_tol, _LEANING_RAD)
+        if area >= cfg.min_face_area_m2:
+            log(f"warning: wall {wall.GlobalId} ({wall.Name}): {area:.2f} m2 of its sides lean up to "
+                f"{np.degrees(slope):.1f} deg out of vertical (more than vertical_tol_deg, {cfg.vertical_tol_deg}): not imported")
     if not straight:
         found = curved.merge_facets(found, cfg.curved_face_tol_m, cfg.coplanar_distance_m, cfg.grid_m)
         line = shapely.LineString(axis)

@@ -19,6 +19,7 @@ class BimImportConfig(Section):
     curved_face_tol_m: float = Field(0.01, gt=0, description="a curved wall face is cut into planar facets, as few as stay this close to it")
     grid_m: float = Field(1e-5, gt=0, description="precision grid of the 2-D polygon operations on faces")
     opening_slice_depth_m: float = Field(0.001, gt=0, description="openings are cut out of a face where they cross the plane this far behind it")
+    lining_gap_m: float = Field(0.01, gt=0, description="a face is hidden where another wall running along it (a lining, furring or cladding modelled as a wall of its own) fills the plane this far in front of it")
     boundary_on_face_m: float = Field(0.02, gt=0, description="a space boundary lies on a wall face when all its points are this close to the face's plane")
     probe_distance_m: float = Field(0.1, gt=0, description="rooms are probed this far in front of a wall face")
     min_section_width_m: float = Field(0.5, gt=0, description="in a model without rooms, a face is not cut at a junction closer than this to its end")

@@ -82,6 +82,13 @@ def test_face_moved_to_another_plane():
         (lambda f: f.update(centre=[100, 5, 100]), "faces[0]: centre .* is not on the face"),
         (lambda f: f.update(kind="slab_top"), "faces[0]: a slab_top face must be horizontal"),
         (lambda data: data.update(T_W_B=[0, 0, 0, 0, 0, 0, 5]), "T_W_B: quaternion has norm 5.0000"),
+        # shapes that would load as another area than the file says, then break a run's geometry
+        (lambda f: f.update(polygon=[[0, 5, 0], [4, 5, 3], [4, 5, 0], [0, 5, 3]]),
+         "faces[0] ('north'): its polygon and holes are not one shape (Self-intersection"),
+        (lambda f: f.update(holes=[[[5, 5, 1], [6, 5, 1], [6, 5, 2], [5, 5, 2]]]),
+         "faces[0] ('north'): its polygon and holes are not one shape (Hole lies outside shell"),
+        (lambda f: f.update(holes=[[[3, 5, 1], [5, 5, 1], [5, 5, 2], [3, 5, 2]]]), "faces[0] ('north'): .* not one shape"),
+        (lambda f: f.update(area=13.0), "faces[0] ('north'): area 13 m2 is not its polygon's less its holes, 12 m2"),
     ],
 )
 def test_bad_map_names_the_field(tmp_path, change, message):
@@ -89,8 +96,18 @@ def test_bad_map_names_the_field(tmp_path, change, message):
     change(data if "T_W_B" in message else data["faces"][0])
     path = tmp_path / "map.json"
     path.write_text(json.dumps(data))
-    with pytest.raises(FormatError, match=message.replace("[", r"\[").replace("]", r"\]")):
+    pattern = message.replace("[", r"\[").replace("]", r"\]").replace("(", r"\(").replace(")", r"\)")  # (".*" stays)
+    with pytest.raises(FormatError, match=pattern):
         load_plane_map(path)
+
+
+def test_a_door_at_floor_level_may_be_a_hole_touching_the_outline(tmp_path):
+    """As a user writes a door by hand: a hole whose bottom edge lies on the polygon's."""
+    data = json.loads(json.dumps(HAND_MAP))
+    data["faces"][0]["holes"] = [[[1, 5, 0], [2, 5, 0], [2, 5, 2], [1, 5, 2]]]
+    path = tmp_path / "map.json"
+    path.write_text(json.dumps(data))
+    assert load_plane_map(path).faces[0].area == pytest.approx(10.0)
 
 
 def test_not_json(tmp_path):

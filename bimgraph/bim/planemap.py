@@ -143,6 +143,12 @@ class PlaneMap(BaseModel):
             seen.add(face.id)
         return self
 
+    @model_validator(mode="after")
+    def _shapes(self):
+        for i, problem in shape_problems(self.faces):
+            raise ValueError(f"faces[{i}] ({self.faces[i].id!r}): {problem}")
+        return self
+
     @cached_property
     def planes(self) -> np.ndarray:
         """F x 4 array of every face's (n, d), in the order of `faces`."""
@@ -169,6 +175,37 @@ def polygon_area_centre(polygon, holes, normal) -> tuple[float, np.ndarray]:
         return 0.0, np.asarray(polygon[0], dtype=float)
     origin, basis = plane_frame(plane)
     return float(shape.area), origin + basis @ np.array(shape.centroid.coords[0])
+
+
+def shape_problems(faces: list[BimFace]):
+    """(index, what) for each face whose polygon and holes do not make the shape they say:
+    an outline that crosses itself (a bow tie), a hole outside it or across its edge (a hole
+    touching it, a door at floor level, is fine), or a given `area` that is not theirs.
+    All faces at once (shapely's array functions): a map of thousands loads in a blink."""
+    import shapely
+
+    if not faces:
+        return
+    normals = np.array([f.normal for f in faces])
+    drop = np.argmax(np.abs(normals), axis=1)  # each face seen along its normal's main axis
+    rings = [ring for f in faces for ring in (f.polygon, *f.holes)]
+    owner = np.repeat(np.arange(len(faces)), [1 + len(f.holes) for f in faces])
+    sizes = [len(ring) for ring in rings]
+    points = np.array([p for ring in rings for p in ring])
+    keep = np.array([[1, 2], [0, 2], [0, 1]])[np.repeat(drop[owner], sizes)]
+    flat = np.take_along_axis(points, keep, axis=1)
+    shapes = shapely.polygons(shapely.linearrings(flat, indices=np.repeat(np.arange(len(rings)), sizes)), indices=owner)
+    scale = np.abs(normals[np.arange(len(faces)), drop])
+    area = shapely.area(shapely.buffer(shapes, 0)) / scale  # (the shape plane_shape makes)
+    ring_areas = shapely.area(shapely.polygons(shapely.linearrings(flat, indices=np.repeat(np.arange(len(rings)), sizes))))
+    first = np.concatenate([[True], owner[1:] != owner[:-1]])
+    enclosed = np.bincount(owner, np.where(first, ring_areas, -ring_areas)) / scale
+    for i in np.flatnonzero(np.abs(area - enclosed) > 1e-6 + 1e-6 * enclosed):
+        yield int(i), (f"its polygon and holes are not one shape ({shapely.is_valid_reason(shapes[i])}): "
+                       f"an outline crossing itself, or a hole outside it or across its edge")
+    given = np.array([f.area for f in faces])
+    for i in np.flatnonzero(np.abs(given - area) > 1e-4 + 1e-3 * area):
+        yield int(i), f"area {given[i]:.4g} m2 is not its polygon's less its holes, {area[i]:.4g} m2 (leave it out to have it computed)"
 
 
 def outline_area(polygon, normal) -> float:

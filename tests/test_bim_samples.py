@@ -31,7 +31,6 @@ def imported(path, include_slabs=False):
 
 
 WARNINGS = defaultdict(list)  # what each model's import warned about, by (path, include_slabs)
-WALLS = set()  # the GlobalIds of the sample models' walls (reference() meshes slabs and spaces too)
 
 
 @lru_cache(maxsize=None)
@@ -106,14 +105,15 @@ def test_normals_point_out_of_their_own_wall(model_path):
         assert not front and back, f"{section.id} ({section.wall_name}): inside in front {front}, behind {back}"
 
 
-def visible_fraction(V, T, side, guid, meshes, rng, samples=4000):
+def visible_fraction(V, T, side, guid, meshes, walls, rng, samples=4000):
     """(fraction, its standard error) of the side triangles `side` of wall `guid` (one plane)
     not hidden by another wall along them: random points on the triangles, pushed out of the
     wall (whichever way OpenCASCADE wound them) by `lining_gap_m`, inside the solid of a wall
-    whose long axis is parallel to the plane."""
+    (of `walls`, GlobalIds) whose long axis is parallel to the plane."""
     A, B, C = (V[T[side, k]] for k in range(3))
     cross = np.cross(B - A, C - A)
-    pick = rng.choice(len(A), samples, p=np.linalg.norm(cross, axis=1) / np.linalg.norm(cross, axis=1).sum())
+    weights = np.linalg.norm(cross, axis=1)
+    pick = rng.choice(len(A), samples, p=weights / weights.sum())
     r1, r2 = np.sqrt(rng.random((samples, 1))), rng.random((samples, 1))
     points = (1 - r1) * A[pick] + r1 * (1 - r2) * B[pick] + r1 * r2 * C[pick]
     normal = cross[0] / np.linalg.norm(cross[0])
@@ -122,7 +122,7 @@ def visible_fraction(V, T, side, guid, meshes, rng, samples=4000):
     points = points + CFG.lining_gap_m * normal
     hidden = np.zeros(samples, dtype=bool)
     for other, (V2, T2) in meshes.items():
-        parallel = other != guid and other in WALLS and abs(long_axis(V2) @ normal) < np.sin(np.radians(CFG.axis_tol_deg))
+        parallel = other != guid and other in walls and abs(long_axis(V2) @ normal) < np.sin(np.radians(CFG.axis_tol_deg))
         if parallel and (points.max(axis=0) > V2.min(axis=0)).all() and (points.min(axis=0) < V2.max(axis=0)).all():
             hidden |= inside(V2, T2, points)
     p = 1 - hidden.mean()
@@ -135,7 +135,7 @@ def test_side_face_area_and_count_agree_with_the_triangulated_walls(model_path):
     another wall along them hides (Duplex's furring over its party walls)."""
     plane_map = imported(model_path)
     model, _, meshes = reference(model_path)
-    WALLS.update(w.GlobalId for w in model.by_type("IfcWall"))
+    walls = {w.GlobalId for w in model.by_type("IfcWall")}  # (reference() meshes slabs and spaces too)
     rng = np.random.default_rng(0)
     ours = {}
     for f in plane_map.faces:
@@ -153,7 +153,7 @@ def test_side_face_area_and_count_agree_with_the_triangulated_walls(model_path):
         planes, spread = {}, 0.0
         for key in set(map(tuple, keys)):
             on_plane = np.flatnonzero(side)[(keys == key).all(axis=1)]
-            fraction, error = visible_fraction(V, T, on_plane, guid, meshes, rng)
+            fraction, error = visible_fraction(V, T, on_plane, guid, meshes, walls, rng)
             planes[key] = area[on_plane].sum() * fraction
             spread += (area[on_plane].sum() * error) ** 2 if fraction < 1 else 0.0
         planes = {k: a for k, a in planes.items() if a >= CFG.min_face_area_m2}

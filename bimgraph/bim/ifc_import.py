@@ -184,7 +184,7 @@ def _sides(reader: ModelReader, wall, mesh, cfg, angle_tol: float, axis_tol: flo
         if area >= cfg.min_face_area_m2:
             log(f"warning: wall {wall.GlobalId} ({wall.Name}): {area:.2f} m2 of its sides lean up to "
                 f"{np.degrees(slope):.1f} deg out of vertical (more than vertical_tol_deg, {cfg.vertical_tol_deg}): not imported")
-    if not straight:
+    else:
         found = curved.merge_facets(found, cfg.curved_face_tol_m, cfg.coplanar_distance_m, cfg.grid_m)
         line = shapely.LineString(axis)
         found = [face for face in found if curved.runs_along(face, line, axis_tol, cfg.grid_m)]

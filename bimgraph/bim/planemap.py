@@ -194,10 +194,11 @@ def shape_problems(faces: list[BimFace]):
     points = np.array([p for ring in rings for p in ring])
     keep = np.array([[1, 2], [0, 2], [0, 1]])[np.repeat(drop[owner], sizes)]
     flat = np.take_along_axis(points, keep, axis=1)
-    shapes = shapely.polygons(shapely.linearrings(flat, indices=np.repeat(np.arange(len(rings)), sizes)), indices=owner)
+    rings_2d = shapely.linearrings(flat, indices=np.repeat(np.arange(len(rings)), sizes))
+    shapes = shapely.polygons(rings_2d, indices=owner)
     scale = np.abs(normals[np.arange(len(faces)), drop])
     area = shapely.area(shapely.buffer(shapes, 0)) / scale  # (the shape plane_shape makes)
-    ring_areas = shapely.area(shapely.polygons(shapely.linearrings(flat, indices=np.repeat(np.arange(len(rings)), sizes))))
+    ring_areas = shapely.area(shapely.polygons(rings_2d))
     first = np.concatenate([[True], owner[1:] != owner[:-1]])
     enclosed = np.bincount(owner, np.where(first, ring_areas, -ring_areas)) / scale
     for i in np.flatnonzero(np.abs(area - enclosed) > 1e-6 + 1e-6 * enclosed):

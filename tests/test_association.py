@@ -196,6 +196,25 @@ def test_a_match_off_by_what_the_extrinsic_allows_is_kept():
     assert asked == [0.05, 0.15]  # not for an offset within `revision_offset_m`
 
 
+def test_a_normal_the_gate_still_takes_keeps_its_match():
+    """A landmark turned 5 deg about the vertical from its face loses the match, unless the
+    BIM gate with its covariance as it stands still takes the face (asked for only then)."""
+    from bimgraph.backend.matches import revision_reason
+
+    cfg = BackendConfig().bim_association
+    faces, turned = _one_wall(cfg)
+    asked = []
+
+    def gated(value):
+        return lambda: asked.append(value) or value
+
+    assert revision_reason(turned([0, 0, 1], 5.0), faces, "a", cfg).startswith("normal")
+    assert revision_reason(turned([0, 0, 1], 5.0), faces, "a", cfg, gated=gated(False)).startswith("normal")
+    assert revision_reason(turned([0, 0, 1], 5.0), faces, "a", cfg, gated=gated(True)) is None
+    assert revision_reason(turned([0, 0, 1], 2.0), faces, "a", cfg, gated=gated(False)) is None
+    assert asked == [False, True]  # not for a normal within `revision_normal_deg`
+
+
 def test_offset_sigma_jacobian_is_the_numerical_one():
     """The offset's standard deviation from the extrinsic's covariance, per tangent direction
     of T_B_S, against a central difference of the offset itself."""

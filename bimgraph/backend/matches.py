@@ -66,13 +66,16 @@ def offset_sigma(plane_S: np.ndarray, T_S_B: np.ndarray, centre_B: np.ndarray, c
 
 
 def revision_reason(plane_B: np.ndarray, faces: FaceIndex, face: str, cfg,
-                    sigma: Callable[[], float] | None = None) -> str | None:
+                    sigma: Callable[[], float] | None = None,
+                    gated: Callable[[], bool] | None = None) -> str | None:
     """Why a landmark matched to `face` no longer fits it, or None if it does. An offset past
     `revision_offset_m` stands if `sigma()` (the offset's standard deviation from the
-    extrinsic's uncertainty, asked only then) allows it `revision_offset_sigmas` times."""
+    extrinsic's uncertainty, asked only then) allows it `revision_offset_sigmas` times; a
+    normal past `revision_normal_deg` stands if `gated()` (whether the BIM gate, with the
+    landmark's covariance as it stands, still takes the face, asked only then) says so."""
     row = faces.row[face]
     angle, offset = misfit(plane_B, faces.planes[row], faces.centres[row])
-    if angle > cfg.revision_normal_deg:
+    if angle > cfg.revision_normal_deg and (gated is None or not gated()):
         return f"normal {angle:.1f} deg off"
     # the normals' elevations: how far the plane leans out of the plumb of a wall-like face
     # (a slab's tilt is its whole normal angle, judged above)

@@ -8,6 +8,8 @@ import math
 import os
 import re
 import shutil
+import signal
+import threading
 from pathlib import Path
 
 import yaml
@@ -149,3 +151,28 @@ def _finite(data):
 
 def write_json(path: Path, data) -> None:
     write_atomic(path, json.dumps(_finite(data), indent=1, allow_nan=False) + "\n")
+
+
+@contextlib.contextmanager
+def uninterrupted():
+    """Hold Ctrl-C and SIGTERM until the block is done, then act on them as their handlers
+    would have: what the block writes to several files is then all written or none of it (a
+    signal in between left a trajectory one line longer than its summary said). Their handlers
+    are swapped, not the signals masked: gtsam's worker threads would take a masked signal and
+    Python would still run its handler at once. Off the main thread, which cannot swap them,
+    the block runs as it is."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    handlers = {s: h for s, h in handlers.items() if h is not None}  # (None: set outside Python, not restorable)
+    for s in handlers:
+        signal.signal(s, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        for s, handler in handlers.items():
+            signal.signal(s, handler)
+        for s in caught:
+            signal.raise_signal(s)

@@ -411,6 +411,39 @@ def test_a_keyframe_stopped_half_way_is_not_in_the_outputs(world, tmp_path):
     assert json.loads((tmp_path / "summary.json").read_text())["landmarks"] == len(landmarks)
 
 
+def test_a_signal_between_the_trajectories_lines_stops_after_both(world, tmp_path, monkeypatch):
+    """Ctrl-C or SIGTERM arriving while the writer puts a keyframe's lines into the two
+    trajectories (here: just after the first) takes effect once the keyframe is written
+    whole: the trajectories and the summary agree. It had stopped between them: the BIM
+    trajectory one line longer than the SLAM one and than the summary's count (seen once in
+    `test_sigterm_stops_a_run_as_ctrl_c_does`, 19 keyframes against 20 lines)."""
+    import os
+    import signal
+
+    from bimgraph.backend.results import OnlineWriter, TumAppender
+    from bimgraph.config import BackendConfig
+
+    scene, _ = world
+    backend = Backend(scene.plane_map, BackendConfig(), scene.initial)
+    writer = OnlineWriter(tmp_path, 1000)
+    append = TumAppender.append
+
+    def append_then_signal(self, stamp, T):
+        append(self, stamp, T)
+        if self is writer.bim and len(writer.latencies) == 7:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(TumAppender, "append", append_then_signal)
+    with pytest.raises(KeyboardInterrupt):
+        for kf in scene.keyframes:
+            writer.keyframe(backend.process(kf), backend)
+    writer.snapshot(backend, finished=False)
+    writer.close()
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["keyframes"] == 8
+    assert len(read_tum(tmp_path / "trajectory_bim.tum")[0]) == len(read_tum(tmp_path / "trajectory_slam.tum")[0]) == 8
+
+
 def test_sigterm_stops_a_run_as_ctrl_c_does(world, tmp_path):
     """systemd, docker stop and ROS launch stop a process with SIGTERM: the run says so and
     leaves its outputs consistent, as after Ctrl-C (it had died at once, without a summary)."""

@@ -18,7 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 from bimgraph.backend.landmarks import DIRECTION, KEPT, OUT, Landmark
 from bimgraph.backend.records import KeyframeResult, Results
 from bimgraph.errors import InputError
-from bimgraph.files import ensure_folder, read_json, write_json
+from bimgraph.files import ensure_folder, read_json, uninterrupted, write_json
 from bimgraph.geometry import plane_from_frame, pose_to_tum
 from bimgraph.sequence.format import Vec3
 from bimgraph.sequence.tum import format_tum, write_tum
@@ -287,11 +287,12 @@ class OnlineWriter:
         self._summary: dict | None = None  # as the last snapshot wrote it
 
     def keyframe(self, result: KeyframeResult, backend) -> None:
-        self.bim.append(result.stamp, result.T_B_C)
-        self.slam.append(result.stamp, result.T_S_C)
-        self.latencies.append(result.latency_s)
-        self.T_B_C.append(result.T_B_C)
-        self.last = result
+        with uninterrupted():  # (a snapshot after a stop counts the lines the trajectories hold)
+            self.bim.append(result.stamp, result.T_B_C)
+            self.slam.append(result.stamp, result.T_S_C)
+            self.latencies.append(result.latency_s)
+            self.T_B_C.append(result.T_B_C)
+            self.last = result
         if len(self.latencies) % self.write_every == 0:
             self.snapshot(backend, finished=False)
 

@@ -165,8 +165,8 @@ def uninterrupted():
         yield
         return
     caught: list[int] = []
-    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
-    handlers = {s: h for s, h in handlers.items() if h is not None}  # (None: set outside Python, not restorable)
+    # (a handler set outside Python reads None and could not be put back: left as it is)
+    handlers = {s: h for s in (signal.SIGINT, signal.SIGTERM) if (h := signal.getsignal(s)) is not None}
     for s in handlers:
         signal.signal(s, lambda signum, frame: caught.append(signum))
     try:

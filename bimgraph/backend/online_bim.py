@@ -96,7 +96,7 @@ class OnlineBimAssociation:
             plane_B = plane_to_frame(self.landmarks.planes_S[j], T_S_B)  # (its estimate was just refreshed)
             reason = revision_reason(plane_B, self.faces, lm.face, self.cfg.bim_association,
                                      lambda: sigma(lm.id, lm.face),
-                                     lambda: self._gate_takes(lm, int(self.faces.group[self.faces.row[lm.face]]), pose_S_B))
+                                     lambda: self._gate_takes(lm, lm.face, pose_S_B))
             if reason is not None:
                 self.unmatch(lm, reason)
                 changed = True
@@ -140,20 +140,19 @@ class OnlineBimAssociation:
         row = self.faces.row[m.face]
         sigma = offset_sigma(self.landmarks.planes_S[lm.id], T_S_B.matrix(), self.faces.centres[row],
                              self.extrinsic_covariance(T_S_B))
-        group = int(self.faces.group[row])
         for k, gap in gaps.items():
             other = self.landmarks[k]
             if gap > cfg.shadow_sigmas * sigma or other.face not in (None, m.face) or other.frozen is not None:
                 continue
-            if self._gate_takes(other, group, T_S_B) and one_plane_d2(other, lm, self.graph.joint) > self.cfg.offline.merge_gate:
+            if self._gate_takes(other, m.face, T_S_B) and one_plane_d2(other, lm, self.graph.joint) > self.cfg.offline.merge_gate:
                 return True
         return False
 
-    def _gate_takes(self, lm: Landmark, group: int, T_S_B: gtsam.Pose3) -> bool:
+    def _gate_takes(self, lm: Landmark, face: str, T_S_B: gtsam.Pose3) -> bool:
         """Whether the BIM gate and the geometric filters, with the landmark's joint marginal
-        as the graph has it now, take face group `group` for landmark `lm`."""
+        as the graph has it now, take `face` (its group) for landmark `lm`."""
         c = candidate(lm, T_S_B, self.graph.joint, self.bim)
-        return c is not None and group in self.bim.scores(c)
+        return c is not None and int(self.faces.group[self.faces.row[face]]) in self.bim.scores(c)
 
     def _claim(self, m: FaceMatch, T_S_B: gtsam.Pose3) -> bool:
         """Match landmark and face. If the face has a landmark that is one plane with this one

@@ -100,9 +100,13 @@ class FaceIndex:
     def to_2d(self, i: int, points: np.ndarray) -> np.ndarray:
         return (points + self.planes[i, 3] * self.planes[i, :3]) @ self.bases[i]
 
+    def group_of(self, face: str) -> int:
+        """The group of coplanar sections the face belongs to."""
+        return int(self.group[self.row[face]])
+
     def has_sections(self, face: str) -> bool:
         """Whether the face is one of several coplanar sections (of a wall spanning rooms)."""
-        return len(self.members[self.group[self.row[face]]]) > 1
+        return len(self.members[self.group_of(face)]) > 1
 
     def member_at(self, group: int, point_B: np.ndarray) -> str:
         """The face of the group nearest to a point on it."""
@@ -125,7 +129,7 @@ class FaceIndex:
         """The face behind each observation of a landmark matched to `face` (its group)."""
         if face is None:
             return [None] * len(centres_B)
-        group = self.group[self.row[face]]
+        group = self.group_of(face)
         return [face if c is None else self.member_at(group, c) for c in centres_B]
 
     def residuals(self, plane_B: np.ndarray, rows: np.ndarray) -> np.ndarray:

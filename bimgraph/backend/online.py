@@ -177,7 +177,7 @@ class Backend:
         if lm.face is None or centre_A is None or not self.faces.has_sections(lm.face):
             return lm.face
         centre_B = transform_points(T_B_S @ lm.T_S_A, centre_A[None])[0]
-        return self.faces.member_at(self.faces.group[self.faces.row[lm.face]], centre_B)
+        return self.faces.member_at(self.faces.group_of(lm.face), centre_B)
 
     def resolve_faces(self, T_B_S: np.ndarray) -> None:
         """Give every observation of every matched landmark its face, with the current estimate."""

@@ -152,7 +152,7 @@ class OnlineBimAssociation:
         """Whether the BIM gate and the geometric filters, with the landmark's joint marginal
         as the graph has it now, take `face` (its group) for landmark `lm`."""
         c = candidate(lm, T_S_B, self.graph.joint, self.bim)
-        return c is not None and int(self.faces.group[self.faces.row[face]]) in self.bim.scores(c)
+        return c is not None and self.faces.group_of(face) in self.bim.scores(c)
 
     def _claim(self, m: FaceMatch, T_S_B: gtsam.Pose3) -> bool:
         """Match landmark and face. If the face has a landmark that is one plane with this one

@@ -207,12 +207,12 @@ def run(
             run_backend(sequence, output, mode=mode, bim=bim_model, config=cfg, seeds=seeds, oracle=oracle,
                         listener=listener, progress=lambda done, total: bar.update(task, completed=done), inputs=inputs,
                         log=lambda text: out.print(text, soft_wrap=True, highlight=False, markup=False),
-                        stage=lambda text: bar.update(task, description=f"bimgraph run ({mode}): {text}"))
+                        stage=lambda text: bar.update(task, description=f"bimgraph run ({mode}): {text}"), recording=rrd)
     finally:
-        if viewer is not None:  # an interrupted run still leaves a complete recording
+        if viewer is not None:  # an interrupted run still leaves a complete recording of what it did
             from bimgraph.viewer.session import finish
 
-            finish(viewer, output)
+            finish(viewer, output, rrd)
     from bimgraph.evaluation.report import summary_table
     from bimgraph.evaluation.runs import run_summary
 

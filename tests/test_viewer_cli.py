@@ -150,6 +150,79 @@ def test_a_view_that_fails_keeps_an_earlier_recording(online_run, tmp_path):
     assert rrd.read_bytes() == before
 
 
+def test_a_recording_never_replaces_a_file_that_is_none(online_run, seq_dir, tmp_path):
+    """`--rrd` on a run's own input or output by a slip of the shell: refused, the file as it
+    was (it was replaced, and the run then failed on the recording it read as its sequence)."""
+    root, _ = seq_dir
+    out = tmp_path / "out"
+    for target in (root / "keyframes.jsonl", root / "sequence.json"):
+        before = target.read_bytes()
+        result = CliRunner().invoke(app, ["run", str(root), "-o", str(out), "--rrd", str(target)])
+        assert_one_line_error(result, 2, f"{target}: exists and is not a Rerun recording")
+        assert target.read_bytes() == before
+    target = online_run / "summary.json"
+    before = target.read_bytes()
+    result = CliRunner().invoke(app, ["view", str(online_run), "--sequence", str(root), "--rrd", str(target)])
+    assert_one_line_error(result, 2, "is not a Rerun recording")
+    assert target.read_bytes() == before
+
+
+def test_a_view_stopped_half_way_keeps_an_earlier_recording(online_run, seq_dir, tmp_path, monkeypatch):
+    """(Ctrl-C during `view --rrd` left a complete recording cut short.)"""
+    from bimgraph.viewer.rerun_viewer import RerunViewer
+
+    root, _ = seq_dir
+    rrd = tmp_path / "x.rrd"
+    assert CliRunner().invoke(app, ["view", str(online_run), "--sequence", str(root), "--rrd", str(rrd)]).exit_code == 0
+    before = rrd.read_bytes()
+    keyframe = RerunViewer.keyframe
+
+    def stopping(self, index, *args, **kwargs):
+        if index == N_KEYFRAMES // 2:
+            raise KeyboardInterrupt
+        keyframe(self, index, *args, **kwargs)
+
+    monkeypatch.setattr(RerunViewer, "keyframe", stopping)
+    result = CliRunner().invoke(app, ["view", str(online_run), "--sequence", str(root), "--rrd", str(rrd)])
+    assert result.exit_code == 130, result.output
+    assert rrd.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.rrd"]
+
+
+def test_a_run_refused_after_the_recording_opened_keeps_an_earlier_one(seq_dir, tmp_path):
+    """The sequence is read whole after the recording is opened: a bad line there replaced an
+    earlier recording with an empty one."""
+    import shutil
+
+    root = tmp_path / "seq"
+    shutil.copytree(seq_dir[0], root)
+    rrd = tmp_path / "run.rrd"
+    assert CliRunner().invoke(app, ["run", str(root), "-o", str(tmp_path / "out"), "--rrd", str(rrd)]).exit_code == 0
+    before = rrd.read_bytes()
+    with open(root / "keyframes.jsonl", "a") as f:
+        f.write("{\n")
+    result = CliRunner().invoke(app, ["run", str(root), "-o", str(tmp_path / "out"), "--rrd", str(rrd)])
+    assert_one_line_error(result, 3, "keyframes.jsonl")
+    assert rrd.read_bytes() == before
+    assert not (tmp_path / "run.rrd.part").exists()
+
+
+def test_a_run_removes_the_recording_of_the_one_before_it(seq_dir, tmp_path):
+    """The summary names the recording; a later run into the folder removes it with the rest
+    (it stayed, the recording of another run beside this one's outputs), but not one outside."""
+    root, _ = seq_dir
+    out = tmp_path / "out"
+    assert CliRunner().invoke(app, ["run", str(root), "-o", str(out), "--rrd", str(out / "run.rrd")]).exit_code == 0
+    assert json.loads((out / "summary.json").read_text())["recording"] == str((out / "run.rrd").resolve())
+    assert CliRunner().invoke(app, ["run", str(root), "-o", str(out), "--rrd", str(out / "run.rrd")]).exit_code == 0
+    verify(out / "run.rrd")  # (its own recording, not removed as the earlier one)
+    assert CliRunner().invoke(app, ["run", str(root), "-o", str(out)]).exit_code == 0
+    assert not (out / "run.rrd").exists()
+    assert CliRunner().invoke(app, ["run", str(root), "-o", str(out), "--rrd", str(tmp_path / "kept.rrd")]).exit_code == 0
+    assert CliRunner().invoke(app, ["run", str(root), "-o", str(out)]).exit_code == 0
+    verify(tmp_path / "kept.rrd")
+
+
 @pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="needs Linux's /proc, where no file can be made")
 def test_a_recording_that_cannot_be_written_is_one_line(online_run):
     """(rerun's own error came as a traceback, with a warning of the data it dropped.)"""

@@ -23,7 +23,7 @@ from bimgraph.config import Config
 from bimgraph.deviations.estimate import RivalAlignment
 from bimgraph.deviations.graph import observed_planes_isam2
 from bimgraph.deviations.outputs import DEVIATION_FILES, write_deviation_outputs
-from bimgraph.errors import ConfigError, InputError
+from bimgraph.errors import BimgraphError, ConfigError, InputError
 from bimgraph.files import ensure_folder
 from bimgraph.geometry import inverse, normalise_plane, plane_from_frame, pose_from_tum
 from bimgraph.sequence.checks import sequence_warnings
@@ -156,12 +156,21 @@ def load_inputs(seq_dir: Path, bim: Path | None, cfg: Config, progress=None) -> 
 _RUN_FILES = (TRAJECTORY_BIM, TRAJECTORY_SLAM, EXTRINSIC, ASSOCIATIONS, LANDMARKS, SUMMARY, *DEVIATION_FILES, METRICS)
 
 
-def clear_previous_run(out_dir: Path) -> None:
+def clear_previous_run(out_dir: Path, recording: Path | None = None) -> None:
     """Remove what an earlier run wrote into `out_dir`, before this run writes there: one
     that stops before it has written each of its files (its deviation report comes last; a
     graph made singular at its first keyframe writes almost nothing) would otherwise leave
-    the earlier run's beside its own as if they were its own. (`out_dir` is a folder: `run`
-    made sure of it.)"""
+    the earlier run's beside its own as if they were its own. That includes the recording
+    its summary names if it lies in `out_dir` (unless it is this run's, `recording`).
+    (`out_dir` is a folder: `run` made sure of it.)"""
+    summary = Path(out_dir) / SUMMARY
+    try:
+        earlier = load_summary(summary).recording if summary.is_file() else None
+    except BimgraphError:  # (a damaged summary names nothing for sure)
+        earlier = None
+    if earlier is not None and Path(earlier).parent.resolve() == Path(out_dir).resolve() and (
+            recording is None or Path(earlier).resolve() != Path(recording).resolve()):
+        Path(earlier).unlink(missing_ok=True)
     _remove(out_dir, _RUN_FILES)
     _remove(out_dir, [name + ".tmp" for name in _RUN_FILES])  # (a run killed while it wrote one)
 
@@ -175,12 +184,14 @@ def _remove(out_dir: Path, names) -> None:
 def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = None, config: Config | None = None,
         seeds: list[tuple[int, int, str]] = (), oracle: bool = False, listener: Listener | None = None,
         progress: Callable[[int, int | None], None] | None = None, inputs: Inputs | None = None,
-        stage: Callable[[str], None] | None = None, log: Callable[[str], None] | None = None) -> Results | None:
+        stage: Callable[[str], None] | None = None, log: Callable[[str], None] | None = None,
+        recording: Path | None = None) -> Results | None:
     """Run the backend on a sequence folder and write the outputs to `out_dir`. The sequence
     is read and validated whole first; online runs then process it keyframe by keyframe,
     writing as they go, and return None. `inputs`, if given, are those of
     `load_inputs(seq_dir, bim, config)`; `progress(keyframes done, total)` hears each online
-    keyframe, `stage(what)` the long step after the last one, and `log(line)` a warning."""
+    keyframe, `stage(what)` the long step after the last one, and `log(line)` a warning;
+    `recording`, the Rerun recording the caller makes of the run, is named in the summary."""
     cfg = config or Config()
     seq_dir = Path(seq_dir)
     if mode not in ("online", "offline"):
@@ -188,7 +199,8 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
     inputs = inputs or load_inputs(seq_dir, bim, cfg)
     meta, plane_map, initial = inputs.meta, inputs.plane_map, inputs.initial
     # Absolute, so that `bimgraph view OUTDIR` finds them from anywhere.
-    named = {"sequence": str(seq_dir.resolve()), "model": str(Path(inputs.model).resolve())}
+    named = {"sequence": str(seq_dir.resolve()), "model": str(Path(inputs.model).resolve()),
+             **({} if recording is None else {"recording": str(Path(recording).resolve())})}
     truth = oracle_of(seq_dir) if oracle else None
     # the whole sequence is read and validated before anything is written: a bad line must
     # not leave an earlier run's outputs in `out_dir` overwritten by a part of this one
@@ -211,7 +223,7 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
             f"starts at identity, trusted to {noise.extrinsic_rot_deg:g} deg and {noise.extrinsic_trans_m:g} m "
             "(backend.noise.extrinsic_*), so walls are matched only if the front-end's frame lies there already")
     ensure_folder(out_dir)  # (before the work, not after it; after everything the input can refuse)
-    clear_previous_run(out_dir)
+    clear_previous_run(out_dir, recording)
     if mode == "offline":
         start = time.perf_counter()
         results = run_offline(sequence.keyframes, plane_map, cfg.backend, initial, listener, truth, depth_tilt(meta, cfg))

@@ -142,6 +142,7 @@ class SummaryFile(_File):
     finished: bool
     sequence: str | None = None  # (absent when the Python API wrote the run)
     model: str | None = None
+    recording: str | None = None  # (`bimgraph run --rrd`)
     keyframes: Index
     landmarks: Index
     matched_landmarks: Index

@@ -12,6 +12,9 @@ from bimgraph.files import ensure_folder
 from bimgraph.sequence.format import Camera
 from bimgraph.viewer import blueprint as bp
 
+# the first bytes of an .rrd file (RRF2 since rerun 0.17, RRF0 and RRF1 before)
+_RRD_MAGIC = b"RRF"
+
 
 def check_viewer_can_open() -> None:
     """Refuse to spawn the Rerun viewer where it cannot open: it is a window, and without a
@@ -25,17 +28,26 @@ def check_viewer_can_open() -> None:
                           "or save the recording with --rrd FILE")
 
 
-def _check_writable(path: Path) -> None:
-    """An InputError if `path` cannot be written, found before the recording is made (rerun's
-    own error would come with its buffer's warnings); an existing file is left as it is."""
+def prepare_target(path: Path) -> None:
+    """Make the folder of `path`; an InputError if `path` cannot take the recording, found
+    before it is made (rerun's own error would come with its buffer's warnings): a folder, a
+    file that cannot be written, or an existing file that is not a Rerun recording (a run's
+    own inputs or outputs, given by a slip of the shell, would be lost). An existing file is
+    left as it is."""
+    ensure_folder(path.parent, path)
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, not a recording file")
     existed = path.exists()
     try:
-        with open(path, "ab"):
-            pass
+        with open(path, "ab+") as f:
+            f.seek(0)
+            head = f.read(len(_RRD_MAGIC))
     except OSError as err:
         raise InputError(f"{path}: cannot write the recording ({err.strerror})") from None
     if not existed:
         path.unlink(missing_ok=True)
+    elif head and head != _RRD_MAGIC:
+        raise InputError(f"{path}: exists and is not a Rerun recording; the recording would replace it")
 
 
 def open_recording(rrd: Path | None = None, spawn: bool = False, camera: Camera | None = None,
@@ -49,10 +61,7 @@ def open_recording(rrd: Path | None = None, spawn: bool = False, camera: Camera 
     recording = rr.RecordingStream(application_id)
     blueprint = bp.default_blueprint(None if camera is None else (camera.width, camera.height))
     if rrd is not None:
-        if Path(rrd).is_dir():
-            raise InputError(f"{rrd}: is a folder, not a recording file")
-        ensure_folder(Path(rrd).parent, rrd)
-        _check_writable(Path(rrd))
+        prepare_target(Path(rrd))
     if rrd is not None and spawn:
         recording.spawn(connect=False)
         recording.set_sinks(rr.GrpcSink(), rr.FileSink(str(rrd)), default_blueprint=blueprint)

@@ -96,6 +96,7 @@ class RerunViewer:
         self._stamp_kind: str | None = None
         self._last: dict[str, np.ndarray] = {}  # last point of each trail already sent
         self._time: tuple[int, float] | None = None  # keyframe and stamp of the last record sent
+        self.logged_keyframes = 0
         self._face_rows: dict[str, list[tuple[tuple[int, float], FaceState]]] = {}  # colour changes to send
         self._next_flush = time.perf_counter() + self.cfg.flush_seconds
         self._state = {f.id: FaceState.UNOBSERVED for f in plane_map.faces}
@@ -148,6 +149,7 @@ class RerunViewer:
         landmarks, the time the backend spent, and the depth image as read from its PNG."""
         if self._stamp_kind is None:
             self._stamp_kind = "timestamp" if stamp > _UNIX_STAMP_MIN else "duration"
+        self.logged_keyframes += 1
         self._pending.append(_Record(
             int(index), float(stamp), np.asarray(T_S_C, dtype=float), np.asarray(T_B_C, dtype=float),
             np.asarray(T_B_S, dtype=float), cov_T_B_S, planes,

@@ -4,6 +4,7 @@ finished run's output folder (`bimgraph view`). File reading lives here, not in 
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +15,7 @@ from bimgraph.errors import FormatError, InputError
 from bimgraph.geometry import inverse
 from bimgraph.sequence.format import SequenceMeta, load_sequence
 from bimgraph.viewer.follow import mark_deviations, read_depth
-from bimgraph.viewer.recording import open_recording
+from bimgraph.viewer.recording import prepare_target, open_recording
 from bimgraph.viewer.rerun_viewer import RerunViewer
 
 
@@ -30,13 +31,21 @@ def ground_truth(seq_dir: Path) -> tuple[dict[int, np.ndarray], np.ndarray | Non
     return dict(enumerate(gt.T_B_C)), gt.T_B_S
 
 
+def partial(rrd: Path) -> Path:
+    """Where the recording for `rrd` is written until `finish` moves it there: a run or a view
+    stopped half-way must not leave an earlier recording at `rrd` cut short."""
+    return rrd.with_name(rrd.name + ".part")
+
+
 def open_viewer(seq_dir: Path, meta: SequenceMeta, plane_map: PlaneMap, T_B_S_initial: np.ndarray, cfg: Config,
                 rrd: Path | None = None, spawn: bool = False) -> RerunViewer:
-    """A viewer for a run over the sequence in `seq_dir`, saving to `rrd` and/or streaming to
-    a spawned Rerun viewer."""
+    """A viewer for a run over the sequence in `seq_dir`, saving to `rrd` (through `partial`)
+    and/or streaming to a spawned Rerun viewer."""
+    if rrd is not None:
+        prepare_target(Path(rrd))
     T_B_C_truth, T_B_S_truth = ground_truth(seq_dir)
-    return RerunViewer(open_recording(rrd, spawn, meta.camera), plane_map, T_B_S_initial, camera=meta.camera,
-                       T_B_C_truth=T_B_C_truth, T_B_S_truth=T_B_S_truth, config=cfg.viewer)
+    return RerunViewer(open_recording(None if rrd is None else partial(Path(rrd)), spawn, meta.camera), plane_map,
+                       T_B_S_initial, camera=meta.camera, T_B_C_truth=T_B_C_truth, T_B_S_truth=T_B_S_truth, config=cfg.viewer)
 
 
 def deviation_report(out_dir: Path):
@@ -58,15 +67,28 @@ def face_statuses(report) -> dict[str, str]:
     return statuses
 
 
-def finish(viewer: RerunViewer, out_dir: Path, report=None) -> None:
+def finish(viewer: RerunViewer, out_dir: Path, rrd: Path | None = None, report=None) -> None:
     """Colour the deviating and contested faces and draw the room widths and wall thicknesses
-    if the run wrote a deviation report (`report`, if read already), and close."""
+    if the run wrote a deviation report (`report`, if read already), close, and move the
+    recording to `rrd` (the file `open_viewer` was given) if it holds a keyframe: a run whose
+    input was refused must not replace an earlier recording with an empty one."""
     report = report or deviation_report(out_dir)
     if report is not None:
         mark_deviations(viewer, face_statuses(report))
         viewer.widths(report.widths)
         viewer.thicknesses(report.thicknesses)
+    close(viewer, rrd, keep=viewer.logged_keyframes > 0)
+
+
+def close(viewer: RerunViewer, rrd: Path | None, keep: bool) -> None:
+    """Close the viewer's recording; move it to `rrd` if `keep`, else drop it (whatever was
+    at `rrd` stays)."""
     viewer.close()
+    if rrd is not None:
+        if keep:
+            os.replace(partial(Path(rrd)), rrd)
+        else:
+            partial(Path(rrd)).unlink(missing_ok=True)
 
 
 def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | None = None,
@@ -104,18 +126,22 @@ def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | N
     report = deviation_report(out_dir)  # (every file read before the recording is written)
 
     viewer = open_viewer(seq.root, seq.meta, plane_map, initial_alignment(seq.meta, cfg).T_B_S, cfg, rrd, spawn)
-    for kf, T_B_C_k, T_S_C_k in zip(keyframes, T_B_C, T_S_C):
-        depth = read_depth(seq.root / kf.depth) if kf.depth is not None and cfg.viewer.depth_images else None
-        viewer.keyframe(kf.index, kf.stamp, T_S_C=kf.pose, T_B_C=T_B_C_k, T_B_S=T_B_C_k @ inverse(T_S_C_k),
-                        planes=kf.planes, plane_faces=[faces.get((kf.index, i)) for i in range(len(kf.planes))],
-                        depth=depth)
-    finish(viewer, out_dir, report)
+    try:
+        for kf, T_B_C_k, T_S_C_k in zip(keyframes, T_B_C, T_S_C):
+            depth = read_depth(seq.root / kf.depth) if kf.depth is not None and cfg.viewer.depth_images else None
+            viewer.keyframe(kf.index, kf.stamp, T_S_C=kf.pose, T_B_C=T_B_C_k, T_B_S=T_B_C_k @ inverse(T_S_C_k),
+                            planes=kf.planes, plane_faces=[faces.get((kf.index, i)) for i in range(len(kf.planes))],
+                            depth=depth)
+    except BaseException:  # (Ctrl-C too) a recording of part of a finished run is no replacement for one of all of it
+        close(viewer, rrd, keep=False)
+        raise
+    finish(viewer, out_dir, rrd, report)
     return len(keyframes), len(seq.keyframes)
 
 
 def follow_run(inputs, cfg: Config, rrd: Path | None = None, spawn: bool = False):
     """(viewer, listener) for `bimgraph run --rrd/--spawn` on the pipeline's `Inputs`: pass
-    the listener to the pipeline, and `finish(viewer, out_dir)` after it."""
+    the listener to the pipeline, and `finish(viewer, out_dir, rrd)` after it."""
     from bimgraph.viewer.follow import RerunListener
 
     viewer = open_viewer(inputs.seq_dir, inputs.meta, inputs.plane_map, inputs.initial.T_B_S, cfg, rrd, spawn)

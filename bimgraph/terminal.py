@@ -85,11 +85,23 @@ def friendly_errors(func):
                 return func(*args, **kwargs)
         except BimgraphError as err:
             raise typer.Exit(_error(str(err), err.exit_code)) from None
-        except KeyboardInterrupt:
+        except BaseException as err:
+            # (Ctrl-C while a compiled module such as gtsam loads comes as that module's ImportError)
+            if not _interrupted(err):
+                raise
             typer.secho("interrupted", err=True)
             raise typer.Exit(130) from None
 
     return wrapper
+
+
+def _interrupted(err: BaseException | None) -> bool:
+    """Whether an exception comes of a Ctrl-C (a KeyboardInterrupt in its chain)."""
+    while err is not None:
+        if isinstance(err, KeyboardInterrupt):
+            return True
+        err = err.__cause__ or err.__context__
+    return False
 
 
 def _interrupt(signum, frame):

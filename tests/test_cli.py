@@ -52,3 +52,20 @@ def test_bim_never_writes_over_its_model(tmp_path):
     result = runner.invoke(app, ["bim", str(model), "-o", str(tmp_path / "." / "model.ifc")], prog_name="bimgraph")
     assert_one_line_error(result, 2, "is the model itself")
     assert model.read_text() == "ISO-10303-21;\n"
+
+
+def test_ctrl_c_while_a_compiled_module_loads_is_an_interruption(monkeypatch):
+    """Ctrl-C during `import gtsam` comes out of pybind11 as an ImportError ("initialization
+    failed") from the KeyboardInterrupt: it was a traceback and exit 1, one try in three when
+    a command was stopped in its first second."""
+    import bimgraph.config
+
+    def interrupted_import():
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as err:
+            raise ImportError("initialization failed") from err
+
+    monkeypatch.setattr(bimgraph.config, "default_yaml", interrupted_import)
+    result = runner.invoke(app, ["config", "--default"])
+    assert result.exit_code == 130 and result.output.strip() == "interrupted"

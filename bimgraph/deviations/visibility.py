@@ -15,9 +15,9 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import open3d as o3d
 import shapely
 from scipy.spatial import cKDTree
 
@@ -25,6 +25,9 @@ from bimgraph.bim.planemap import BimFace, PlaneMap
 from bimgraph.config import DeviationConfig
 from bimgraph.geometry import plane_frame, plane_shape
 from bimgraph.viewer.meshes import face_mesh
+
+if TYPE_CHECKING:  # (open3d takes a third of a second to load: only where rays are cast, not for `eval` or `view`)
+    import open3d as o3d
 
 # Samples sit this far in front of their face, so that the ray to one never stops on the face
 # it belongs to.
@@ -83,6 +86,8 @@ def storey_floors(faces: Sequence[BimFace], margin_m: float) -> list[np.ndarray]
 
 
 def _scene(faces: Sequence[BimFace], floors: list[np.ndarray]) -> o3d.t.geometry.RaycastingScene:
+    import open3d as o3d
+
     scene = o3d.t.geometry.RaycastingScene()
     meshes = [face_mesh(face.polygon, face.holes, face.plane) for face in faces]
     meshes += [(floor, np.array([[0, 1, 2], [0, 2, 3]])) for floor in floors]
@@ -105,6 +110,8 @@ def expected_view_counts(plane_map: PlaneMap, T_B_C: np.ndarray, K: np.ndarray, 
                          cfg: DeviationConfig) -> dict[str, int]:
     """For every face, the number of keyframes (poses `T_B_C`, K x 4 x 4, OpenCV camera axes)
     at which at least `cfg.visibility_min_area_m2` of it was in view and not hidden."""
+    import open3d as o3d
+
     faces = plane_map.faces
     T_B_C = np.asarray(T_B_C).reshape(-1, 4, 4)
     T_B_C = T_B_C[np.isfinite(T_B_C).all(axis=(1, 2))]  # (a pose not known sees nothing)

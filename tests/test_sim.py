@@ -365,9 +365,9 @@ def test_a_failed_simulation_leaves_no_folder_it_made(tmp_path, monkeypatch):
     assert not (tmp_path / "new").exists()
     kept = tmp_path / "kept"
     kept.mkdir()
-    (kept / "notes.txt").write_text("mine")
     result = CliRunner().invoke(app, ["simulate", "-o", str(kept), "--ifc", str(half)])
-    assert result.exit_code == 3 and [p.name for p in kept.iterdir()] == ["notes.txt"]
+    assert result.exit_code == 3 and kept.is_dir() and not any(kept.iterdir())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["half.ifc", "kept"]  # (nothing written beside it either)
 
     def stop(*args, **kwargs):
         raise KeyboardInterrupt
@@ -402,3 +402,52 @@ def test_simulate_says_each_step_before_the_keyframes(tmp_path):
     assert firsts == ["importing the model", "building the storey as built", "planning the walk", "observing"]
     assert "importing the model: faces split per room 1/" in " ".join(steps)
     assert done == [(k, 5) for k in range(1, 6)]
+
+
+def test_a_simulation_replaces_an_earlier_one_whole_and_nothing_else(tmp_path, monkeypatch):
+    """Into the folder of an earlier simulation: its files go, a depth walk's images with them
+    (they outlived a planes walk written over it), once the new one is complete (stopped, the
+    earlier one stays as it was). A folder of other files, or of a sequence not simulated, is
+    refused: it was written over without a word."""
+    from typer.testing import CliRunner
+
+    from cli_errors import assert_one_line_error
+
+    from bimgraph.cli import app
+    from bimgraph.sim import observe
+
+    seq = tmp_path / "seq"
+    assert CliRunner().invoke(app, ["simulate", "-o", str(seq), "--sensor", "depth", "-n", "3", "--seed", "1"]).exit_code == 0
+    (seq / "notes.txt").write_text("mine")
+    before = {p: p.read_bytes() for p in seq.rglob("*") if p.is_file()}
+    detect = observe.detect
+    calls = []
+
+    def stop(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return detect(*args, **kwargs)
+
+    monkeypatch.setattr(observe, "detect", stop)
+    assert CliRunner().invoke(app, ["simulate", "-o", str(seq), "-n", "5", "--seed", "2"]).exit_code == 130
+    assert {p: p.read_bytes() for p in seq.rglob("*") if p.is_file()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["seq"]
+    monkeypatch.setattr(observe, "detect", detect)
+
+    assert CliRunner().invoke(app, ["simulate", "-o", str(seq), "-n", "5", "--seed", "2"]).exit_code == 0
+    assert sorted(p.name for p in seq.iterdir()) == ["groundtruth", "keyframes.jsonl", "model.ifc", "notes.txt", "sequence.json"]
+    assert len(load_sequence(seq).keyframes) == 5
+
+    others = tmp_path / "run"
+    others.mkdir()
+    (others / "summary.json").write_text("{}")
+    result = CliRunner().invoke(app, ["simulate", "-o", str(others), "-n", "3"])
+    assert_one_line_error(result, 2, "holds files but no sequence")
+    assert [p.name for p in others.iterdir()] == ["summary.json"]
+    meta = json.loads((seq / "sequence.json").read_text())
+    del meta["simulated"]
+    (seq / "sequence.json").write_text(json.dumps(meta))
+    result = CliRunner().invoke(app, ["simulate", "-o", str(seq), "-n", "3"])
+    assert_one_line_error(result, 2, "holds a sequence that was not simulated")
+    assert len(load_sequence(seq).keyframes) == 5

@@ -8,7 +8,11 @@ streams per stage, so the same seed gives the same files byte for byte.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
+import os
+import shutil
+import tempfile
 import time
 import uuid
 from dataclasses import dataclass
@@ -20,16 +24,19 @@ from scipy.spatial.transform import Rotation
 
 from bimgraph.config import Config
 from bimgraph.errors import ConfigError, InputError
-from bimgraph.files import existing_file, new_folder
+from bimgraph.files import existing_file, new_folder, uninterrupted
 from bimgraph.geometry import make_pose
-from bimgraph.sequence.format import Camera, InitialAlignment, Keyframe, Sequence, SequenceMeta, save_sequence
-from bimgraph.sequence.groundtruth import LABELS_FOLDER, GroundTruth, pose7, rounded, write_groundtruth
+from bimgraph.sequence.format import (KEYFRAMES_FILE, META_FILE, Camera, InitialAlignment, Keyframe, Sequence, SequenceMeta,
+                                      load_meta, save_sequence)
+from bimgraph.sequence.groundtruth import FOLDER, LABELS_FOLDER, GroundTruth, pose7, rounded, write_groundtruth
 from bimgraph.sim import clutter, occupancy, observe, world
 from bimgraph.sim.frontend import simulate_frontend
 from bimgraph.sim.scenarios import SCENARIOS
 from bimgraph.sim.trajectory import plan_trajectory
 
 MODEL_FILE = "model.ifc"
+# what a simulation writes into its folder (one in the planes mode leaves the depth mode's out)
+WRITTEN = (META_FILE, KEYFRAMES_FILE, MODEL_FILE, FOLDER, "depth", "rgb", "depth.txt", "rgb.txt")
 SENSORS = ("planes", "depth")
 # Furniture of each kind of building (the site gets pallets of material instead of desks).
 KINDS = {"office": ("box", "desk", "cabinet"), "site": ("box", "pallet"), "ifc": ("box", "desk", "cabinet")}
@@ -117,12 +124,41 @@ def simulate(opts: SimOptions, cfg: Config, log: Callable[[str], None] = lambda 
              stage: Callable[[str], None] = lambda text: None) -> dict:
     """Write the sequence folder `opts.output`; returns a summary (counts, drift, timings).
     `progress(done, total)` hears each keyframe, `stage(what)` each step before them (on a
-    building of a thousand walls they take a minute). A simulation that fails (a truncated
-    IFC, a storey without rooms, Ctrl-C) removes the folder if it made it: an empty or
-    half-written sequence folder would stand as a sequence."""
+    building of a thousand walls they take a minute). The folder is new, empty, or holds an
+    earlier simulation, which this one replaces whole (its files in `WRITTEN`; a depth walk's
+    images outlived a planes walk written over it); anything else there is refused. The
+    sequence is written beside the folder and moved in once complete: a simulation that fails
+    (a truncated IFC, a storey without rooms, Ctrl-C) leaves the folder as it was, or none,
+    since an empty or half-written sequence folder would stand as a sequence."""
     opts.check()
-    with new_folder(opts.output):
-        return _simulate(opts, cfg, log, progress, stage)
+    out = Path(opts.output)
+    _check_replaceable(out)
+    with new_folder(out.parent), tempfile.TemporaryDirectory(prefix=f".{out.name}.", dir=out.parent) as tmp:
+        summary = _simulate(dataclasses.replace(opts, output=Path(tmp)), cfg, log, progress, stage)
+        with uninterrupted():
+            out.mkdir(exist_ok=True)
+            for name in WRITTEN:
+                if (out / name).is_dir():
+                    shutil.rmtree(out / name)
+                else:
+                    (out / name).unlink(missing_ok=True)
+            for written in Path(tmp).iterdir():
+                os.replace(written, out / written.name)
+    return summary
+
+
+def _check_replaceable(out: Path) -> None:
+    """An InputError unless `out` is new, empty or a simulated sequence folder (a user's own
+    recording, or a run's outputs, must not go)."""
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: is a file, not a folder")
+    if not out.is_dir() or not any(out.iterdir()):
+        return
+    if not (out / META_FILE).is_file():
+        raise InputError(f"{out}: holds files but no sequence; simulate writes a new or empty folder, "
+                         "or over a sequence it simulated before")
+    if load_meta(out).simulated is None:
+        raise InputError(f"{out}: holds a sequence that was not simulated; simulate would replace it")
 
 
 def _simulate(opts: SimOptions, cfg: Config, log: Callable[[str], None], progress: Callable[[int, int], None],

@@ -283,9 +283,11 @@ def evaluate(
         for method in methods:
             rows.append(summary_row(method, evaluation.metrics(evaluation.baseline(method, associations))))
     measured = {out_dir: evaluation.metrics(estimate, out_dir) for out_dir, estimate in estimates.items()}
+    total = len(evaluation.sequence.keyframes)
     for out_dir, metrics in measured.items():
         write_metrics(out_dir, metrics)
-        rows.append({**summary_row(Path(out_dir).name, metrics), **timings[out_dir]})
+        stopped = f" (stopped: first {metrics['keyframes']} of {total} keyframes)" if metrics["keyframes"] < total else ""
+        rows.append({**summary_row(Path(out_dir).name + stopped, metrics), **timings[out_dir]})
     rows.append(summary_row("truth", evaluation.metrics(evaluation.truth())))
     if baselines:
         manual = rows[0]

@@ -109,18 +109,25 @@ def test_malformed_ground_truth_is_one_line_exit_3(finished_run, tmp_path):
     assert_one_line_error(result, 3, "observations.jsonl: line 2: planes: Input should be a valid list")
 
 
-def test_a_run_of_another_length_is_named_and_no_metrics_are_written(finished_run, tmp_path):
-    """Two runs, the second cut short (an interrupted online run): the first run's
-    metrics.json was written before the second failed, and the error named no run."""
+def test_a_run_stopped_early_is_measured_over_the_keyframes_it_reached(finished_run, tmp_path):
+    """An interrupted online run's outputs are valid up to its last keyframe (README): eval
+    refused them ("25 poses for 30 keyframes"). One with more poses than the sequence has
+    keyframes is still another sequence's."""
     seq, out = finished_run
     good, short = tmp_path / "good", tmp_path / "short"
     shutil.copytree(out, good)
     shutil.copytree(out, short)
     lines = (short / "trajectory_bim.tum").read_text().splitlines()
     (short / "trajectory_bim.tum").write_text("\n".join(lines[:-5]) + "\n")
-    result = CliRunner().invoke(app, ["eval", str(good), str(short), "--gt", str(seq), "--no-baselines"])
-    assert_one_line_error(result, 3, f"{short} has 25 poses for 30 keyframes")
-    assert not (good / "metrics.json").exists()
+    result = CliRunner().invoke(app, ["eval", str(good), str(short), "--gt", str(seq), "--no-baselines"], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    assert "short (stopped: first 25 of 30 keyframes)" in result.output
+    whole, part = (json.loads((run / "metrics.json").read_text()) for run in (good, short))
+    assert (whole["keyframes"], part["keyframes"]) == (30, 25)
+    assert part["per_keyframe"]["translation_error_m"] == whole["per_keyframe"]["translation_error_m"][:25]
+    (short / "trajectory_bim.tum").write_text("\n".join(lines + [lines[-1]]) + "\n")
+    assert_one_line_error(CliRunner().invoke(app, ["eval", str(short), "--gt", str(seq), "--no-baselines"]), 3,
+                          f"{short} has 31 poses for 30 keyframes")
 
 
 @pytest.mark.parametrize("change, message", [

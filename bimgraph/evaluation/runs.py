@@ -69,10 +69,12 @@ class Evaluation:
         self._observed = {(kf.index, i) for kf in self.sequence.keyframes for i in range(len(kf.planes))}
 
     def metrics(self, estimate: Estimate, name: str = "the run") -> dict:
+        """Every metric of `estimate`; one of an online run that stopped early (its stamps
+        those of the sequence's first keyframes) over the keyframes it reached."""
         keyframes = self.sequence.keyframes
-        if len(estimate.T_B_C) != len(keyframes):
-            raise FormatError(f"{name} has {len(estimate.T_B_C)} poses for {len(keyframes)} keyframes "
-                              "(an unfinished online run?)")
+        n = len(estimate.T_B_C)
+        if n > len(keyframes) or (n < len(keyframes) and estimate.stamps is None):
+            raise FormatError(f"{name} has {n} poses for {len(keyframes)} keyframes")
         if estimate.stamps is not None:
             check_stamps(name, estimate.stamps, keyframes, self.sequence.root)
         for (k, i), face in (estimate.associations or {}).items():
@@ -80,7 +82,7 @@ class Evaluation:
                 raise FormatError(f"{name}: associations name plane {i} of keyframe {k}, which {self.sequence.root} does not have")
             if face is not None and face not in self.plane_map.index:
                 raise FormatError(f"{name}: associations name face {face!r}, which the plane map does not have")
-        return evaluate(estimate, keyframes, self.gt, self.plane_map)
+        return evaluate(estimate, keyframes[:n], self.gt.first(n), self.plane_map)
 
     def truth(self) -> Estimate:
         """The ground truth as if it were a method: its wall errors are the floor that the

@@ -13,8 +13,9 @@
 
 from __future__ import annotations
 
+
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -73,6 +74,11 @@ class GroundTruth:
 
     def face_of(self, keyframe: int, plane: int) -> str | None:
         return self.observations[keyframe][plane]["face_id"]
+
+    def first(self, n: int) -> GroundTruth:
+        """The ground truth of the first `n` keyframes (what a run stopped there is measured on)."""
+        return replace(self, stamps=self.stamps[:n], T_B_C=self.T_B_C[:n], observations=self.observations[:n],
+                                   visible=self.visible[:n])
 
 
 def as_planned(face: dict) -> bool:

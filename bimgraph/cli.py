@@ -162,7 +162,8 @@ def simulate(
     console(stderr=False).print(
         f"{output}: {summary['keyframes']} keyframes, {summary['planes']} plane detections, "
         f"{summary['distance_m']:.1f} m walked; front-end drift {drift['final_drift_percent']:.2f} % of distance, "
-        f"heading {drift['yaw_drift_deg_per_m']:.3f} deg/m; timings {summary['timings_s']}")
+        f"heading {drift['yaw_drift_deg_per_m']:.3f} deg/m; seconds: "
+        + ", ".join(f"{stage} {seconds:.2f}" for stage, seconds in summary["timings_s"].items()))
 
 
 @app.command()
@@ -221,7 +222,7 @@ def run(
     if rrd is not None:
         from bimgraph.viewer.rrd import open_command
 
-        result.print(f"recording: {rrd} (open it with: {open_command(rrd)})")
+        result.print(f"recording: {rrd} (open it with: {open_command(rrd)})", soft_wrap=True)
 
 
 @app.command()
@@ -247,7 +248,9 @@ def view(
     cfg = load_config(config_file)
     n, total = view_outputs(outdir, sequence, cfg, bim=bim_model, rrd=rrd, spawn=spawn or rrd is None)
     stopped = f" of the sequence's {total} (the run stopped early)" if n < total else ""
-    console(stderr=False).print(f"{outdir}: {n} keyframes{stopped} logged" + (f" to {rrd} (open it with: {open_command(rrd)})" if rrd else ""))
+    # (one line, however narrow the terminal: the command in it is to be copied)
+    console(stderr=False).print(f"{outdir}: {n} keyframes{stopped} logged" + (f" to {rrd} (open it with: {open_command(rrd)})" if rrd else ""),
+                                soft_wrap=True)
 
 
 @app.command("eval")

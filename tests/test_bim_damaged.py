@@ -217,3 +217,43 @@ def test_rooms_without_geometry_leave_the_split_to_the_junctions(tmp_path):
 def import_ifc_model(model, path):
     model.write(str(path))
     return imported(path)
+
+
+def real_wall_lines(text: str) -> list[tuple[int, str, str, str]]:
+    """(line number, statement, GlobalId, Name) of each IfcWallStandardCase of an ArchiCAD model."""
+    pattern = re.compile(r"^#\d+= ?IFCWALLSTANDARDCASE\('([^']+)',[^,]*,'([^']*)'.*$", re.MULTILINE)
+    return [(text[:m.start()].count("\n") + 1, m.group(0), m.group(1), m.group(2)) for m in pattern.finditer(text)]
+
+
+def test_a_parenthesis_too_many_in_a_wall_names_its_line(ifc_samples, tmp_path):
+    """The parser keeps the wall of that statement, its attributes lost, and swallows every
+    wall after it: walls are found, no face comes out; that is the file's damage, said by its
+    line, not a model without faces. (It said "no wall face", exit 2, named the husk wall by the
+    entity the parser had put in its GlobalId, and passed on ifcopenshell's C++ type names.)"""
+    text = (ifc_samples / "AC20-FZK-Haus.ifc").read_text()
+    line, wall, _, _ = real_wall_lines(text)[0]
+    (tmp_path / "m.ifc").write_text(text.replace(wall, wall.replace("(", "((", 1), 1))
+    result = CliRunner().invoke(app, ["bim", str(tmp_path / "m.ifc"), "-o", str(tmp_path / "planes.json")])
+    *warnings, error, _ = result.stderr.split("\n")
+    assert result.exit_code == 3 and error.startswith("error: "), result.stderr
+    assert "the file is damaged" in error and f"line {line}: its parentheses do not balance" in error, error
+    assert all(w.startswith("warning: ") for w in warnings), warnings
+    assert "IfcRelSpaceBoundary" not in result.stderr and "instance_reference" not in result.stderr, result.stderr
+
+
+def test_two_walls_sharing_a_globalid_are_told_apart(ifc_samples, tmp_path):
+    """GlobalIds are unique in IFC; a file where two walls share one (a copy-paste slip) is
+    warned about, naming both, and their faces keep ids of their own (they came out merged
+    under one wall, without a word)."""
+    text = (ifc_samples / "AC20-FZK-Haus.ifc").read_text()
+    (_, first, guid, first_name), (_, second, shared, second_name) = real_wall_lines(text)[:2]
+    (tmp_path / "m.ifc").write_text(text.replace(first, first.replace(guid, shared), 1))
+    plane_map, warnings = imported(tmp_path / "m.ifc")
+    original, _ = imported(ifc_samples / "AC20-FZK-Haus.ifc")
+    ids = [first.split("=")[0], second.split("=")[0]]
+    assert any(shared in w and all(i in w for i in ids) and first_name in w and second_name in w for w in warnings), warnings
+    faces = {name: [f for f in plane_map.faces if f.wall_name == name] for name in (first_name, second_name)}
+    assert all(f.wall_guid == shared for fs in faces.values() for f in fs)
+    prefixes = {name: {f.id.rpartition("/")[0] for f in fs} for name, fs in faces.items()}
+    assert len(prefixes[first_name]) == len(prefixes[second_name]) == 1 and prefixes[first_name] != prefixes[second_name]
+    assert len(plane_map.faces) == len(original.faces)

@@ -49,10 +49,7 @@ def import_ifc(path, cfg: BimImportConfig, log=None, progress=None):
     walls = model.by_type("IfcWall")
     if not walls:
         if problems:  # (lost to the damage, most likely)
-            line = unbalanced_statement(path)
-            where = f"the first: {problems[0]}" if line is None else f"line {line}: its parentheses do not balance"
-            raise FormatError(f"{path}: the model has no walls (IfcWall); the file is damaged "
-                              f"({len(problems)} problems, {where})")
+            raise FormatError(f"{path}: the model has no walls (IfcWall); {_damage(path, problems)}")
         raise InputError(f"{path}: the model has no walls (IfcWall)")
     for message in problems[:_PARSE_WARNINGS]:
         log(f"warning: {path.name}: {message}")
@@ -62,6 +59,8 @@ def import_ifc(path, cfg: BimImportConfig, log=None, progress=None):
         reader = ModelReader(model, cfg.threads, missing_references(problems))
     except (InputError, AttributeError, ValueError) as err:  # (a cycle, a reference to no entity, no axes)
         raise FormatError(f"{path}: the building's placement cannot be read ({err})") from None
+    slabs = model.by_type("IfcSlab") if cfg.include_slabs else ()
+    face_ids = _face_ids(walls + slabs, log)
     voids = {wall.id(): [rel.RelatedOpeningElement for rel in wall.HasOpenings if rel.RelatedOpeningElement is not None]
              for wall in walls}
     spaces = model.by_type("IfcSpace")
@@ -74,23 +73,28 @@ def import_ifc(path, cfg: BimImportConfig, log=None, progress=None):
             f"(the first: {reader.kernel_fallbacks[0]})")
     curtain_walls = model.by_type("IfcCurtainWall")
     for wall in curtain_walls:
-        log(f"warning: curtain wall {wall.GlobalId} ({wall.Name}): not imported")
+        log(f"warning: curtain wall {_named(wall)}: not imported")
 
     wall_faces = _wall_faces(reader, [w for w in walls if w.id() in meshes], meshes, voids, solids, cfg, log, progress)
     unreadable = [w for w in walls if w.id() in reader.unreadable]
     skipped["walls skipped (geometry unreadable)"] = _skip(log, "wall", unreadable, "", reader.unreadable)
-    sections = _split_per_room(reader, wall_faces, meshes, spaces, solids, cfg, progress)
+    faces_per_wall = Counter()  # by face id prefix
+    sections = _split_per_room(reader, wall_faces, meshes, spaces, solids, face_ids, faces_per_wall, cfg, progress)
     if reader.unread_boundaries:
         log(f"warning: {reader.unread_boundaries} space boundaries could not be read, skipped (their rooms are found by their solids)")
     # Whatever takes a wall's faces (a sliver, none vertical or along its axis, all below the
     # minimum area, or cut up by openings and rooms), it must not vanish unnoticed.
-    imported = {section.wall_guid for section in sections}
-    faceless = [w for w in walls if w.id() in meshes and w.id() not in reader.unreadable and w.GlobalId not in imported]
+    faceless = [w for w in walls
+                if w.id() in meshes and w.id() not in reader.unreadable and not faces_per_wall[face_ids[w.id()]]]
     skipped["walls skipped (no side face)"] = _skip(log, "wall", faceless, f"no side face of at least {cfg.min_face_area_m2} m2")
     if not sections:
+        # (a parser lost in a wall's statement keeps its type, not its geometry, and may swallow
+        # every wall after it: walls are found, and yet it is the file that is at fault)
+        if problems:
+            raise FormatError(f"{path}: no wall face of at least {cfg.min_face_area_m2} m2; {_damage(path, problems)}")
         raise InputError(f"{path}: no wall face of at least {cfg.min_face_area_m2} m2")
     if cfg.include_slabs:
-        slab_sections, skipped["slabs skipped"] = _slab_faces(reader, cfg, log)
+        slab_sections, skipped["slabs skipped"] = _slab_faces(reader, slabs, face_ids, cfg, log)
         sections += slab_sections
     T_W_B = None if np.allclose(reader.T_W_B, np.eye(4)) else tuple(pose_to_tum(reader.T_W_B))
     plane_map = PlaneMap(source=path.name, origin=ORIGIN, T_W_B=T_W_B, faces=sections)
@@ -98,12 +102,47 @@ def import_ifc(path, cfg: BimImportConfig, log=None, progress=None):
     return plane_map, _report(path, walls, skipped, curtain_walls, wall_faces, sections, seconds)
 
 
+def _damage(path: Path, problems: list[str]) -> str:
+    """What the one-line error says of a damaged file: the line to fix where its parentheses
+    do not balance (one "(" too many swallows the rest of the file), the first problem else."""
+    line = unbalanced_statement(path)
+    where = f"the first: {problems[0]}" if line is None else f"line {line}: its parentheses do not balance"
+    return f"the file is damaged ({len(problems)} problems, {where})"
+
+
+def _named(element) -> str:
+    """An element as warnings name it: its GlobalId and Name; its entity id where the parser,
+    lost in the element's statement, filled its attributes with what came next (another entity)."""
+    if isinstance(element.GlobalId, str):
+        return f"{element.GlobalId} ({element.Name})"
+    return f"#{element.id()} ({element.is_a()}, its attributes lost to the file's damage)"
+
+
+def _face_ids(elements, log) -> dict[int, str]:
+    """Element id -> what its faces' ids start with: its GlobalId. GlobalIds are unique in IFC;
+    elements sharing one (an exporter's or a hand edit's slip) are warned about, and their
+    faces' ids carry their entity ids too: refusing the file would be too harsh for one slip,
+    and faces numbered under one id would have reports and BCF topics name one wall for two.
+    (Their `wall_guid` stays the file's GlobalId: a BCF viewer looks elements up by it.)"""
+    sharing = {}
+    for element in elements:
+        sharing.setdefault(element.GlobalId, []).append(element)
+    out = {}
+    for guid, alike in sharing.items():
+        if len(alike) > 1:
+            named = ", ".join(f"#{e.id()} {e.is_a()} ({e.Name})" for e in alike)
+            log(f"warning: GlobalId {guid} is given to {len(alike)} elements, {named}: their faces' ids are "
+                f"{guid}#<entity id>/<k>")
+        out.update({e.id(): guid if len(alike) == 1 else f"{guid}#{e.id()}" for e in alike})
+    return out
+
+
 def _skip(log, kind: str, elements, reason: str, reasons: dict[int, str] | None = None) -> int:
     """Warn that each of `elements` (of `kind`) is skipped for `reason`, or for its own in
     `reasons` (by element id); returns how many."""
     for element in elements:
         why = (reasons or {}).get(element.id(), reason)
-        log(f"warning: {kind} {element.GlobalId} ({element.Name}): {why}, skipped")
+        log(f"warning: {kind} {_named(element)}: {why}, skipped")
     return len(elements)
 
 
@@ -121,7 +160,7 @@ def _wall_faces(reader: ModelReader, walls, meshes, voids, solids, cfg, log, pro
                                             f"({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})")
         progress("walls' side faces", done, len(walls))
     for opening in (o for wall, _ in per_wall.values() for o in voids[wall.id()] if o.id() not in solids):
-        log(f"warning: opening {opening.GlobalId} has no geometry; its wall keeps the area")
+        log(f"warning: opening {_named(opening)} has no geometry; its wall keeps the area")
 
     linings = _Linings(per_wall, meshes, axis_tol, cfg.lining_gap_m)
     out = []
@@ -182,7 +221,7 @@ def _sides(reader: ModelReader, wall, mesh, cfg, angle_tol: float, axis_tol: flo
     if straight:
         area, slope = F.sloped_sides(mesh.V, mesh.T, np.radians(cfg.vertical_tol_deg), along, axis_tol, _LEANING_RAD)
         if area >= cfg.min_face_area_m2:
-            log(f"warning: wall {wall.GlobalId} ({wall.Name}): {area:.2f} m2 of its sides lean up to "
+            log(f"warning: wall {_named(wall)}: {area:.2f} m2 of its sides lean up to "
                 f"{np.degrees(slope):.1f} deg out of vertical (more than vertical_tol_deg, {cfg.vertical_tol_deg}): not imported")
     else:
         found = curved.merge_facets(found, cfg.curved_face_tol_m, cfg.coplanar_distance_m, cfg.grid_m)
@@ -191,44 +230,44 @@ def _sides(reader: ModelReader, wall, mesh, cfg, angle_tol: float, axis_tol: flo
     return [(face, F.depth_behind(face, found, angle_tol)) for face in found]
 
 
-def _split_per_room(reader: ModelReader, wall_faces, meshes, spaces, solids, cfg, progress) -> list[BimFace]:
-    """Sections of the wall faces per room (`spaces`, with their meshes in `solids`)."""
+def _split_per_room(reader: ModelReader, wall_faces, meshes, spaces, solids, face_ids, counter: Counter, cfg,
+                    progress) -> list[BimFace]:
+    """Sections of the wall faces per room (`spaces`, with their meshes in `solids`), their ids
+    from `face_ids` (by wall id) numbered on in `counter`."""
     names = {s.GlobalId: " ".join(n for n in (s.Name, s.LongName) if n) for s in spaces}
     guids = {s.id(): s.GlobalId for s in spaces}
     rooms = Rooms({guids[i]: meshes for i, meshes in solids.items() if i in guids})
     boundaries = {}
     for b in reader.boundaries([wall for wall, _, _ in wall_faces]):
-        boundaries.setdefault(b.wall_guid, []).append(b)
+        boundaries.setdefault(b.wall_id, []).append(b)
 
     # (rooms without a solid or a boundary on these walls say nothing: the junctions split then)
-    junctions = None if rooms.items or boundaries else Junctions({wall.GlobalId: meshes[wall.id()] for wall, _, _ in wall_faces})
+    junctions = None if rooms.items or boundaries else Junctions({wall.id(): meshes[wall.id()] for wall, _, _ in wall_faces})
     angle_tol = np.radians(cfg.vertical_tol_deg)
     sections = []
-    counter = Counter()
     for done, (wall, face, depth) in enumerate(wall_faces, start=1):
         if junctions is None:
             in_front = rooms.claims(face, cfg.probe_distance_m)
-            claims = boundary_claims(face, depth, boundaries.get(wall.GlobalId, []), cfg.boundary_on_face_m,
+            claims = boundary_claims(face, depth, boundaries.get(wall.id(), []), cfg.boundary_on_face_m,
                                      angle_tol, {c.space_guid: c.region for c in in_front})
             pieces = [(region, claim or Claim(None, "none", None))
                       for region, claim in split_face(face, claims + in_front, cfg.grid_m)]
         else:
-            cuts = junctions.cuts(face, wall.GlobalId, cfg.coplanar_distance_m, cfg.min_section_width_m)
+            cuts = junctions.cuts(face, wall.id(), cfg.coplanar_distance_m, cfg.min_section_width_m)
             pieces = [(region, Claim(None, "junction" if cuts else "none", None)) for region in split_at(face, cuts)]
         for region, claim in pieces:
             space = Space(guid=claim.space_guid, name=names.get(claim.space_guid, "")) if claim.space_guid else None
-            sections += _sections(reader, wall, face, region, cfg, counter, space=space, split=claim.method)
+            sections += _sections(reader, wall, face_ids[wall.id()], face, region, cfg, counter, space=space, split=claim.method)
         progress("faces split per room", done, len(wall_faces))
     return sections
 
 
-def _slab_faces(reader: ModelReader, cfg, log) -> tuple[list[BimFace], int]:
+def _slab_faces(reader: ModelReader, slabs, face_ids, cfg, log) -> tuple[list[BimFace], int]:
     """Top and bottom faces of every slab, openings (stairs, shafts) subtracted by the
     geometry iterator: slabs have few, and their faces are not split per room. Returns them
     and how many slabs were skipped (warned about through `log`)."""
     sections = []
     counter = Counter()
-    slabs = reader.model.by_type("IfcSlab")
     meshes = reader.meshes(slabs, subtract_openings=True)
     faceless = []
     for slab in slabs:
@@ -238,7 +277,7 @@ def _slab_faces(reader: ModelReader, cfg, log) -> tuple[list[BimFace], int]:
         found = []
         for face in F.horizontal_faces(mesh.V, mesh.T, np.radians(cfg.vertical_tol_deg), cfg.coplanar_distance_m, cfg.grid_m):
             kind = "slab_top" if face.normal[2] > 0 else "slab_bottom"
-            found += _sections(reader, slab, face, face.region, cfg, counter, kind=kind)
+            found += _sections(reader, slab, face_ids[slab.id()], face, face.region, cfg, counter, kind=kind)
         sections += found
         if not found:  # e.g. a sloped roof slab
             faceless.append(slab)
@@ -246,20 +285,19 @@ def _slab_faces(reader: ModelReader, cfg, log) -> tuple[list[BimFace], int]:
     return sections, skipped + _skip(log, "slab", faceless, f"no horizontal face of at least {cfg.min_face_area_m2} m2")
 
 
-def _sections(reader, element, face: F.Face, region, cfg, counter: Counter, **fields) -> list[BimFace]:
-    """One BimFace per polygon of `region` (in `face`'s frame) of at least the minimum area;
-    `counter` numbers them per element."""
+def _sections(reader, element, face_id: str, face: F.Face, region, cfg, counter: Counter, **fields) -> list[BimFace]:
+    """One BimFace per polygon of `region` (in `face`'s frame) of at least the minimum area,
+    its id `face_id`/k, k numbering them per `face_id` in `counter`."""
     storey, elevation = reader.storey(element)
-    guid, name = element.GlobalId, element.Name or ""
     out = []
     for polygon in F.polygons(region):
         if polygon.area < cfg.min_face_area_m2:
             continue
         polygon = polygon.simplify(cfg.grid_m)  # corners only: no vertices along straight edges
-        k = counter[guid]
-        counter[guid] += 1
+        k = counter[face_id]
+        counter[face_id] += 1
         out.append(BimFace(
-            id=f"{guid}/{k}", wall_guid=guid, wall_name=name,
+            id=f"{face_id}/{k}", wall_guid=element.GlobalId, wall_name=element.Name or "",
             storey=storey, elevation=elevation, normal=tuple(face.normal), offset=face.offset,
             polygon=_points_3d(face, polygon.exterior), holes=[_points_3d(face, r) for r in polygon.interiors],
             area=polygon.area, centre=tuple(face.to_3d(np.asarray(polygon.centroid.coords))[0].tolist()), **fields))

@@ -47,7 +47,7 @@ class Boundary:
     unit normal (None if degenerate), computed once for all the faces of its wall."""
 
     space_guid: str
-    wall_guid: str
+    wall_id: int  # the wall's entity id (GlobalIds may be shared, by a slip)
     points: np.ndarray
     normal: np.ndarray | None = field(init=False)
 
@@ -117,17 +117,18 @@ def unbalanced_statement(path) -> int | None:
 
 
 _OFFSET = re.compile(r"at offset (\d+)")
-_NEWLINE = b"\n"
 
 
 def _with_lines(messages: list[str], path: Path) -> list[str]:
     """The parser's messages with each byte offset named as the file's line."""
     if not any(_OFFSET.search(m) for m in messages):
         return messages
-    data = path.read_bytes()
+    # (a parenthesis too many gives a message per entity swallowed, tens of thousands: the
+    # newlines are found once, not counted again for each)
+    newlines = np.flatnonzero(np.frombuffer(path.read_bytes(), dtype=np.uint8) == ord("\n"))
 
     def line(found: re.Match) -> str:
-        return f"on line {data.count(_NEWLINE, 0, int(found.group(1))) + 1}"
+        return f"on line {np.searchsorted(newlines, int(found.group(1))) + 1}"
 
     return [_OFFSET.sub(line, m) for m in messages]
 
@@ -147,8 +148,13 @@ def missing_references(problems: list[str]) -> dict[int, set[int]]:
     return out
 
 
+# (the parser's message where "(" opened a list where one value was due: it names mangled C++ types, no line)
+_MIXED_LIST = "Inconsistent aggregate valuation"
+
+
 def _parse_problems(log_text: str) -> list[str]:
-    """The messages of errors and of duplicate entities in ifcopenshell's JSON log."""
+    """The messages of errors and of duplicate entities in ifcopenshell's JSON log, those of
+    lists of mixed types as one, where the first was."""
     out = []
     for line in log_text.splitlines():
         try:
@@ -158,6 +164,9 @@ def _parse_problems(log_text: str) -> list[str]:
         message = str(record.get("message", "")).strip()
         if record.get("level") == "error" or message.startswith("Overwriting instance"):
             out.append(message)
+    if mixed := [i for i, message in enumerate(out) if message.startswith(_MIXED_LIST)]:
+        out[mixed[0]] = f"{len(mixed)} lists of values of mixed types (a parenthesis out of place, most likely)"
+        out = [message for message in out if not message.startswith(_MIXED_LIST)]
     return out
 
 
@@ -352,12 +361,12 @@ class ModelReader:
 
     def boundaries(self, walls) -> list[Boundary]:
         """Surface space boundaries on the given walls, as point loops in B."""
-        wall_guids = {wall.id(): wall.GlobalId for wall in walls}
+        wall_ids = {wall.id() for wall in walls}
         spaces = {}  # id -> (guid, T_B_S), read once for the room's many boundaries
         out = []
         for rel in self.model.by_type("IfcRelSpaceBoundary"):
             wall = rel.RelatedBuildingElement
-            if wall is None or wall.id() not in wall_guids:  # most are on slabs, doors, windows
+            if wall is None or wall.id() not in wall_ids:  # most are on slabs, doors, windows
                 continue
             space, geometry = rel.RelatingSpace, rel.ConnectionGeometry
             if space is None or not space.is_a("IfcSpace"):
@@ -375,7 +384,7 @@ class ModelReader:
                 continue
             guid, T_B_S = spaces[space.id()]
             points = points * self.scale
-            out.append(Boundary(guid, wall_guids[wall.id()], points @ T_B_S[:3, :3].T + T_B_S[:3, 3]))
+            out.append(Boundary(guid, wall.id(), points @ T_B_S[:3, :3].T + T_B_S[:3, 3]))
         return out
 
 

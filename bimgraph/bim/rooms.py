@@ -90,16 +90,16 @@ class Junctions:
     """Where other walls meet a face: the paper's split for models without rooms."""
 
     def __init__(self, walls: dict):
-        self.items = list(walls.items())  # wall guid -> mesh in B
+        self.items = list(walls.items())  # wall id -> mesh in B
         self.boxes = np.array([[m.V.min(axis=0), m.V.max(axis=0)] for _, m in self.items]).reshape(-1, 2, 3)
 
-    def cuts(self, face: Face, wall_guid: str, touch: float, min_width: float) -> list[float]:
+    def cuts(self, face: Face, wall_id: int, touch: float, min_width: float) -> list[float]:
         """u of the axis of every wall abutting the face from the front (its end lies on the
         face's plane), at least `min_width` from the face's ends."""
         u0, v0, u1, v1 = face.region.bounds
         out = []
-        for (guid, mesh), (lo, hi) in zip(self.items, self.boxes):
-            if guid == wall_guid or lo[2] >= v1 - touch or hi[2] <= v0 + touch:  # a wall above or below
+        for (wall, mesh), (lo, hi) in zip(self.items, self.boxes):
+            if wall == wall_id or lo[2] >= v1 - touch or hi[2] <= v0 + touch:  # a wall above or below
                 continue
             distance = mesh.V @ face.normal + face.offset
             on_plane = np.abs(distance) <= touch

@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 from bimgraph.backend.graph import E, L, X, FactorBuilder, cov_T_B_S, pose3, sigmas_cov
 from bimgraph.config import BackendConfig
 from bimgraph.errors import ConfigError, InputError
-from bimgraph.geometry import least_rotation, make_pose, rotation_from_correlation
+from bimgraph.geometry import least_rotation, make_pose, plane_to_frame, rotation_from_correlation
 
 _WEAK = 1e6  # variance factor of the prior in the directions the seeds observe
 
@@ -125,12 +125,14 @@ def _rotation_from_normals(normals_S: np.ndarray, normals_B: np.ndarray, R_prior
 
 def align_from_seeds(planes_S: np.ndarray, planes_B: np.ndarray, cfg: BackendConfig,
                      prior: Alignment | None = None, centres_B: np.ndarray | None = None,
-                     labels: list[str] | None = None) -> Alignment:
+                     labels: list[str] | None = None, seen: list[tuple[np.ndarray, np.ndarray | None]] | None = None) -> Alignment:
     """`T_B_S` from seed pairs (plane in S, BIM face plane in B, with the faces' centres if
     known), its covariance, and the directions the seeds leave unobservable (which keep the
-    prior's uncertainty). A gravity-aligned prior makes it a turn about z. ConfigError where a
-    pair's normals stay more than `seed_max_angle_deg` apart once turned (the pairs disagree:
-    one is wrong), naming it by its `labels` entry."""
+    prior's uncertainty). `seen`: per pair, the pose `T_S_C` of the keyframe that detected the
+    plane and the detection's covariance (None: the default), which the covariance then
+    carries; without it the planes count as exact. A gravity-aligned prior makes it a turn about
+    z. ConfigError where a pair's normals stay more than `seed_max_angle_deg` apart once turned
+    (the pairs disagree: one is wrong), naming it by its `labels` entry."""
     planes_S, planes_B = np.asarray(planes_S, float).reshape(-1, 4), np.asarray(planes_B, float).reshape(-1, 4)
     if len(planes_S) == 0 or len(planes_S) != len(planes_B):
         raise InputError(f"seed alignment needs pairs of planes, got {len(planes_S)} and {len(planes_B)}")
@@ -159,14 +161,18 @@ def align_from_seeds(planes_S: np.ndarray, planes_B: np.ndarray, cfg: BackendCon
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     graph.add(build.extrinsic_prior(prior.T_B_S, lock_directions(weak, unobservable, sigma_rot, sigma_trans)))
     values.insert(E, pose3(guess).inverse())
-    # the seed planes are given in S: anchor them at a fixed identity pose
-    graph.add(build.first_pose(0, np.eye(4)))
-    values.insert(X(0), gtsam.Pose3())
-    fixed = build.observation_cov(np.zeros((3, 3)))  # the floor: fixed, against the walls' tolerance
+    # Each seed plane as its keyframe saw it (fixed at its pose in S), under the detection's
+    # covariance: at the floor instead, one pair of an office walk, a plane 4.8 m off with its
+    # offset 7 cm (2 sigma) out, gave an alignment 9 cm off that claimed 2.6 cm, whose prior
+    # then made the robust alignment keep a wall built 2.4 cm off plan (3.0 cm, NEES 28).
     for j, (plane_S, plane_B) in enumerate(zip(planes_S, planes_B)):
-        graph.add(build.anchor_observation(j, plane_S, fixed))
-        graph.add(build.bim(0, j, plane_B, None if centres_B is None else centres_B[j]))
-        values.insert(L(j), gtsam.OrientedPlane3(plane_S))
+        T_S_C, cov = seen[j] if seen is not None else (np.eye(4), np.zeros((3, 3)))
+        plane_C = plane_to_frame(plane_S, T_S_C)
+        graph.add(build.first_pose(j, T_S_C))
+        values.insert(X(j), pose3(T_S_C))
+        graph.add(build.anchor_observation(j, plane_C, build.observation_cov(cov)))
+        graph.add(build.bim(j, j, plane_B, None if centres_B is None else centres_B[j]))
+        values.insert(L(j), gtsam.OrientedPlane3(plane_C))
     result = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
     T_S_B = result.atPose3(E)
     cov_E = gtsam.Marginals(graph, result).marginalCovariance(E)

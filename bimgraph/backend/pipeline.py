@@ -106,7 +106,7 @@ def seed_alignment(keyframes: list[Keyframe], plane_map: PlaneMap, seeds: list[t
                    cfg: Config, prior: Alignment) -> Alignment:
     """Plane registration of seed pairs (keyframe, plane index, BIM face id)."""
     by_index = {kf.index: kf for kf in keyframes}
-    planes_S, planes_B, centres_B = [], [], []
+    planes_S, planes_B, centres_B, seen = [], [], [], []
     for k, i, face in seeds:
         if k not in by_index or i >= len(by_index[k].planes):
             raise ConfigError(f"seed {k}:{i}:{face}: no plane {i} in keyframe {k}")
@@ -116,8 +116,9 @@ def seed_alignment(keyframes: list[Keyframe], plane_map: PlaneMap, seeds: list[t
         planes_S.append(plane_from_frame(normalise_plane(kf.planes[i].plane), kf.pose))
         planes_B.append(plane_map.faces[plane_map.index[face]].plane)
         centres_B.append(plane_map.faces[plane_map.index[face]].centre)
+        seen.append((kf.pose, kf.planes[i].cov))
     return align_from_seeds(np.array(planes_S), np.array(planes_B), cfg.backend, prior, np.array(centres_B),
-                            [f"{k}:{i}:{face}" for k, i, face in seeds])
+                            [f"{k}:{i}:{face}" for k, i, face in seeds], seen)
 
 
 def oracle_of(root: Path) -> dict[tuple[int, int], str | None]:

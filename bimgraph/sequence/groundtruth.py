@@ -13,7 +13,6 @@
 
 from __future__ import annotations
 
-
 import json
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -78,7 +77,7 @@ class GroundTruth:
     def first(self, n: int) -> GroundTruth:
         """The ground truth of the first `n` keyframes (what a run stopped there is measured on)."""
         return replace(self, stamps=self.stamps[:n], T_B_C=self.T_B_C[:n], observations=self.observations[:n],
-                                   visible=self.visible[:n])
+                       visible=self.visible[:n])
 
 
 def as_planned(face: dict) -> bool:

@@ -15,7 +15,7 @@ from bimgraph.errors import FormatError, InputError
 from bimgraph.geometry import inverse
 from bimgraph.sequence.format import SequenceMeta, load_sequence
 from bimgraph.viewer.follow import mark_deviations, read_depth
-from bimgraph.viewer.recording import prepare_target, open_recording
+from bimgraph.viewer.recording import open_recording, prepare_target
 from bimgraph.viewer.rerun_viewer import RerunViewer
 
 

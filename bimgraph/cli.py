@@ -103,8 +103,9 @@ def planes(
     max_dt: float = typer.Option(0.02, "--max-dt", help="Largest stamp difference between a depth image and its trajectory pose (s)."),
     config_file: Optional[Path] = ConfigOption,
 ):
-    """Detect planes in every keyframe's depth image and write them into the keyframes file
-    (a keyframe without a depth image keeps its planes; a sequence without any is refused).
+    """Detect planes in every keyframe's depth image and write them into the keyframes file.
+
+    A keyframe without a depth image keeps its planes; a sequence without any is refused.
 
     Example (TUM fr1/desk, ORB-SLAM trajectory):
     bimgraph planes rgbd_dataset_freiburg1_desk -t CameraTrajectory.txt --fx 517.3 --fy 516.5 --cx 318.6 --cy 255.3
@@ -131,10 +132,10 @@ def planes(
 @friendly_errors
 def simulate(
     output: Path = typer.Option(..., "--output", "-o", help="The sequence folder to write."),
-    scenario: Optional[str] = typer.Option(None, "--scenario", help="Generated building: office or site (default office)."),
+    scenario: Optional[str] = typer.Option(None, "--scenario", metavar="office|site", help="Generated building: office or site (default office)."),
     ifc: Optional[Path] = typer.Option(None, "--ifc", help="Walk through this IFC model instead of a generated one."),
     storey: Optional[str] = typer.Option(None, "--storey", help="The model's storey to walk, by name (default: the one with the most wall area; sim.storey)."),
-    sensor: str = typer.Option("planes", "--sensor", help="planes: plane detections (fast); depth: 640x480 depth images."),
+    sensor: str = typer.Option("planes", "--sensor", metavar="planes|depth", help="planes: plane detections (fast); depth: 640x480 depth images."),
     keyframes: int = typer.Option(600, "--keyframes", "-n", help="Number of keyframes."),
     seed: int = typer.Option(0, "--seed", help="Random seed; the same seed gives the same files."),
     config_file: Optional[Path] = ConfigOption,
@@ -172,7 +173,7 @@ def run(
     sequence: Path = typer.Argument(..., help="The sequence folder (sequence.json + keyframes.jsonl)."),
     output: Path = typer.Option(..., "--output", "-o", help="Folder for the trajectories, extrinsic, associations, landmarks, summary."),
     bim_model: Optional[Path] = typer.Option(None, "--bim", help="IFC model or plane map JSON; default: the model sequence.json names."),
-    mode: str = typer.Option("online", "--mode", help="online (keyframe by keyframe, causal) or offline (whole sequence, smoothed)."),
+    mode: str = typer.Option("online", "--mode", metavar="online|offline", help="online (keyframe by keyframe, causal) or offline (whole sequence, smoothed)."),
     seed: list[str] = typer.Option([], "--seed", help="Seed pair KEYFRAME:PLANE:FACE_ID for the initial alignment (repeat it; two walls at an angle fix the heading, pairs that disagree are refused); default: the sequence's manual alignment."),
     oracle: bool = typer.Option(False, "--oracle", help="Use the ground-truth associations of a simulated sequence (the reference the association is measured by)."),
     rrd: Optional[Path] = typer.Option(None, "--rrd", help="Save a Rerun recording of the run to this .rrd file (open it with: rerun FILE)."),
@@ -262,10 +263,11 @@ def evaluate(
     bim_model: Optional[Path] = typer.Option(None, "--bim", help="IFC model or plane map JSON to measure against; default: the one the runs used (their summary.json names it), else the one the sequence names."),
     config_file: Optional[Path] = ConfigOption,
 ):
-    """Measure runs against ground truth: ATE, RPE, extrinsic error, the paper's wall errors,
-    association precision and recall. Writes metrics.json into each output folder. The last
-    row, "truth", is the ground-truth trajectory measured the same way: the floor of the wall
-    errors that the detections' noise and the as-built deviations leave.
+    """Measure runs against ground truth: ATE, RPE, extrinsic, wall errors, association.
+
+    The wall errors are the seed paper's; association is precision and recall against the simulator's truth. Writes metrics.json into each output folder.
+
+    The last row, "truth", is the ground-truth trajectory measured the same way: the floor of the wall errors that the detections' noise and the as-built deviations leave.
 
     Example: bimgraph eval out/online out/offline --gt seq
     """

@@ -40,6 +40,18 @@ def test_help_is_still_the_full_help():
     assert "Usage: bimgraph [OPTIONS] COMMAND" in alone.output and "simulate" in alone.output
 
 
+@pytest.mark.parametrize("command, choices", [("run", "online|offline"), ("simulate", "office|site"),
+                                             ("simulate", "planes|depth")])
+def test_help_lists_an_options_choices(command, choices):
+    assert choices in runner.invoke(app, [command, "--help"], prog_name="bimgraph", terminal_width=100).stdout
+
+
+def test_the_command_list_gives_each_command_one_sentence():
+    listing = runner.invoke(app, ["--help"], prog_name="bimgraph", env={"COLUMNS": "200", "TERMINAL_WIDTH": "200"}).stdout
+    commands = [line for line in listing[listing.index("Commands"):].splitlines() if line.startswith("│")]
+    assert len(commands) == 7 and all(line.rstrip(" │").endswith(".") for line in commands), commands
+
+
 @pytest.mark.parametrize("args", [["bim", "{tmp}", "-o", "{tmp}/planes.json"], ["config", "--check", "{tmp}"]])
 def test_a_folder_where_a_file_belongs_is_named_so(tmp_path, args):
     result = runner.invoke(app, [a.format(tmp=tmp_path) for a in args], prog_name="bimgraph")

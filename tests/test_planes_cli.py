@@ -165,6 +165,38 @@ def test_a_failure_mid_extraction_leaves_the_keyframes_file_as_it_was(tmp_path, 
     assert not any(p.name.endswith(".tmp") for p in tmp_path.iterdir())
 
 
+def test_depth_images_that_give_no_plane_leave_the_keyframes_file_as_it_was(tmp_path):
+    """Every frame skipped (the depth images moved away), or none with a plane: it said "0
+    planes in N frames", exit 0, and wrote every keyframe without its planes."""
+    make_tum_folder(tmp_path, count=3)
+    pinhole = ["--fx", "525", "--fy", "525", "--cx", "319.5", "--cy", "239.5"]
+    assert runner.invoke(app, ["planes", str(tmp_path), "-t", str(tmp_path / "traj.txt"), *pinhole]).exit_code == 0
+    before = (tmp_path / "keyframes.jsonl").read_bytes()
+    (tmp_path / "depth").rename(tmp_path / "moved")
+    assert_one_line_error(runner.invoke(app, ["planes", str(tmp_path)]), 2,
+                          "no plane found in any of the 3 depth images (every one was skipped; the first: ",
+                          "no such depth image); nothing written")
+    (tmp_path / "moved").rename(tmp_path / "depth")
+    (tmp_path / "few.yaml").write_text("planes:\n  min_area_m2: 1000000\n")
+    assert_one_line_error(runner.invoke(app, ["planes", str(tmp_path), "-c", str(tmp_path / "few.yaml")]), 2,
+                          "no plane found in any of the 3 depth images (check the intrinsics")
+    assert (tmp_path / "keyframes.jsonl").read_bytes() == before
+
+
+@pytest.mark.parametrize("order", ["repeated", "reversed"])
+def test_a_depth_list_out_of_time_order_is_refused_naming_the_line(tmp_path, order):
+    """It wrote keyframes that `run` then refused ("stamp 0.857143 does not follow 0.857143")."""
+    make_tum_folder(tmp_path, count=3)
+    lines = (tmp_path / "depth.txt").read_text().splitlines()
+    header, images = lines[:2], lines[2:]
+    images = images[:2] + images[1:] if order == "repeated" else images[::-1]
+    (tmp_path / "depth.txt").write_text("\n".join(header + images) + "\n")
+    result = runner.invoke(app, ["planes", str(tmp_path), "-t", str(tmp_path / "traj.txt"), "--fx", "525", "--fy", "525",
+                                 "--cx", "319.5", "--cy", "239.5"])
+    assert_one_line_error(result, 3, f"depth.txt: line {5 if order == 'repeated' else 4}: stamp ", "(list each image once, in time order)")
+    assert not (tmp_path / "keyframes.jsonl").exists()
+
+
 @pytest.mark.parametrize("options, message", [
     (["--fx", "-500", "--fy", "500", "--cx", "320", "--cy", "240"], "fx: Input should be greater than 0"),
     (["--fx", "nan", "--fy", "500", "--cx", "320", "--cy", "240"], "fx: Input should be a finite number"),

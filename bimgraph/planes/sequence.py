@@ -73,8 +73,9 @@ def extract_into(seq: Sequence, camera: Camera, cfg: Config,
     """Extract the planes of every keyframe that has a depth image and save the sequence; a
     simulated depth sequence also gets the ground truth of its new planes, so that it can be
     evaluated. A sequence without depth images is refused before anything is written (its
-    planes are all it has). The keyframes file is replaced once, atomically, after the last
-    frame: a failure or Ctrl-C half-way leaves it as it was."""
+    planes are all it has), as is one in whose depth images no plane is found. The keyframes
+    file is replaced once, atomically, after the last frame: a failure or Ctrl-C half-way
+    leaves it as it was."""
     from bimgraph.sim.labels import simulated_labeller
 
     if not any(kf.depth for kf in seq.keyframes):
@@ -90,6 +91,11 @@ def extract_into(seq: Sequence, camera: Camera, cfg: Config,
 
     seq.meta.camera = camera
     report = detect_planes(seq, camera, cfg.planes, cfg.depth_noise, frame)
+    if report.planes == 0:
+        # (saved, the planes the keyframes had would be gone, and a run could use none of them)
+        why = (f"every one was skipped; the first: {report.problems[0]}" if len(report.problems) == report.frames
+               else "check the intrinsics, their depth_scale and the configuration's `planes`")
+        raise InputError(f"{seq.root}: no plane found in any of the {report.frames} depth images ({why}); nothing written")
     save_sequence(seq)
     if labeller is not None:
         labeller.save(seq.root)

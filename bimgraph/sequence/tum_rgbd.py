@@ -57,8 +57,10 @@ def read_depth_png(path: Path, scale: float = DEPTH_SCALE) -> np.ndarray:
     return image.astype(float) / scale
 
 
-def read_image_list(path: Path) -> tuple[np.ndarray, list[str]]:
-    """Stamps and relative paths of a TUM `depth.txt` / `rgb.txt`."""
+def read_image_list(path: Path, in_order: bool = False) -> tuple[np.ndarray, list[str]]:
+    """Stamps and relative paths of a TUM `depth.txt` / `rgb.txt`; `in_order`: FormatError
+    naming the line where a stamp does not follow the one before (each depth image becomes a
+    keyframe, and keyframes must follow one another)."""
     stamps, names = [], []
     for lineno, fields in data_lines(path):
         if len(fields) != 2:
@@ -69,6 +71,9 @@ def read_image_list(path: Path) -> tuple[np.ndarray, list[str]]:
             stamp = math.nan
         if not math.isfinite(stamp):  # (float() takes "nan" and "inf")
             raise FormatError(f"{path}: line {lineno}: stamp {fields[0]!r} is not a finite number")
+        if in_order and stamps and stamp <= stamps[-1]:
+            raise FormatError(f"{path}: line {lineno}: stamp {fields[0]} does not follow {stamps[-1]:.6f} (list each image "
+                              "once, in time order)")
         stamps.append(stamp)
         names.append(fields[1])
     return np.array(stamps), names
@@ -108,7 +113,7 @@ def load_tum_rgbd(folder: Path, trajectory: Path, camera: Camera, root: Path | N
     relative to `root` (default: the folder itself), where the sequence is to be saved."""
     folder = Path(folder)
     root = Path(root) if root is not None else folder
-    depth_stamps, depth_names = read_image_list(folder / DEPTH_LIST)
+    depth_stamps, depth_names = read_image_list(folder / DEPTH_LIST, in_order=True)
     rgb_stamps, rgb_names = read_image_list(folder / RGB_LIST) if (folder / RGB_LIST).is_file() else (np.zeros(0), [])
     pose_stamps, poses = read_tum(trajectory)
     if not len(poses):

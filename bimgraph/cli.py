@@ -274,9 +274,10 @@ def evaluate(
     from bimgraph.config import load_config
     from bimgraph.evaluation.evaluate import reduction_percent
     from bimgraph.evaluation.report import metrics_table
-    from bimgraph.evaluation.runs import Evaluation, load_estimate, model_of_runs, run_timings, summary_row, write_metrics
+    from bimgraph.evaluation.runs import Evaluation, check_runs_of, load_estimate, model_of_runs, run_timings, summary_row, write_metrics
 
     cfg = load_config(config_file)
+    check_runs_of(outdirs, gt)
     evaluation = Evaluation(gt, cfg, bim_model or model_of_runs(outdirs, gt))
     # every run read, validated and measured before any metrics.json is written
     estimates = {str(d): load_estimate(d) for d in outdirs}

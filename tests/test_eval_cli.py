@@ -213,3 +213,16 @@ def test_a_run_moved_with_its_sequence_finds_its_model_there(finished_run, tmp_p
     assert result.exit_code == 0, result.output
     result = CliRunner().invoke(app, ["view", str(after / "out"), "--sequence", str(after / "seq"), "--rrd", str(tmp_path / "x.rrd")])
     assert result.exit_code == 0, result.output
+
+
+def test_a_run_measured_against_another_sequence_is_refused(finished_run, tmp_path):
+    """Another walk of the same stamps and planes per keyframe passed every other check, and its
+    figures came out plausible and wrong. A copy of the run's own sequence is measured."""
+    seq, out = finished_run
+    write_sequence(tmp_path / "other", 30, rooms=(1, 1), seed=6)
+    result = CliRunner().invoke(app, ["eval", str(out), "--gt", str(tmp_path / "other"), "--no-baselines"])
+    assert_one_line_error(result, 2, f"the run was made on {seq}, whose keyframes differ from",
+                          "measure it against its own sequence")
+    assert not (out / "metrics.json").exists() or "other" not in (out / "metrics.json").read_text()
+    shutil.copytree(seq, tmp_path / "copy")
+    assert CliRunner().invoke(app, ["eval", str(out), "--gt", str(tmp_path / "copy"), "--no-baselines"]).exit_code == 0

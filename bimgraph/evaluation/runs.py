@@ -4,6 +4,7 @@ without ground truth (`run_summary`, printed by `bimgraph run`)."""
 
 from __future__ import annotations
 
+import filecmp
 from collections import Counter
 from pathlib import Path
 
@@ -19,7 +20,7 @@ from bimgraph.evaluation.baselines import estimate_extrinsics, matched_planes
 from bimgraph.evaluation.evaluate import Estimate, evaluate
 from bimgraph.files import write_json
 from bimgraph.geometry import pose_from_tum
-from bimgraph.sequence.format import Sequence, load_sequence
+from bimgraph.sequence.format import KEYFRAMES_FILE, Sequence, load_sequence
 from bimgraph.sequence.groundtruth import GroundTruth, load_groundtruth
 from bimgraph.sequence.tum import read_tum
 
@@ -36,6 +37,22 @@ def load_estimate(out_dir: Path) -> Estimate:
     extrinsic = load_extrinsic(out_dir / EXTRINSIC)
     associations = load_associations(out_dir / ASSOCIATIONS).face_of_observation()
     return Estimate(list(T_B_C), pose_from_tum(extrinsic.T_B_S), associations, np.asarray(extrinsic.covariance), stamps)
+
+
+def check_runs_of(out_dirs, seq_dir: Path) -> None:
+    """InputError for a run whose summary names another sequence than `seq_dir` whose
+    keyframes differ from its own: measured against the wrong ground truth, a run's figures
+    came out plausible and wrong (another office walk's: association 0.91 / 0.87 for 1.00 /
+    0.98). A copy of the sequence, or one that is no longer where the run found it, passes."""
+    keyframes = Path(seq_dir) / KEYFRAMES_FILE
+    for out_dir in out_dirs:
+        summary_path = Path(out_dir) / SUMMARY
+        named = load_summary(summary_path).sequence if summary_path.is_file() else None
+        if named is None or not (Path(named) / KEYFRAMES_FILE).is_file() or Path(named).resolve() == Path(seq_dir).resolve():
+            continue
+        if keyframes.is_file() and not filecmp.cmp(Path(named) / KEYFRAMES_FILE, keyframes, shallow=False):
+            raise InputError(f"{out_dir}: the run was made on {named}, whose keyframes differ from {seq_dir}'s; "
+                             "measure it against its own sequence")
 
 
 def model_of_runs(out_dirs, seq_dir: Path) -> Path | None:

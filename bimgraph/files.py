@@ -30,7 +30,8 @@ def read_text(path: Path) -> str:
     given by mistake): FormatError. Never a traceback."""
     path = existing_file(path)
     try:
-        return path.read_text()
+        # (utf-8-sig: Windows editors start a file with a byte-order mark, which json refuses)
+        return path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:
         raise FormatError(f"{path}: not a text file") from None
     except OSError as err:
@@ -57,7 +58,24 @@ def parse_json(text: str, where: str, lines: bool = False):
 
 class _Yaml12Floats(yaml.SafeLoader):
     """YAML 1.1 reads `1e-3` (no dot, or an exponent without its sign) as a string; 1.2, and
-    whoever writes a sigma so, as a number."""
+    whoever writes a sigma so, as a number. A key given twice in one mapping is an error:
+    PyYAML keeps the last silently, so that an edit below a forgotten one went unnoticed."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            first = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":  # (`<<: *base` may be overridden)
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    if key in first:
+                        raise yaml.constructor.ConstructorError(
+                            None, None, f"key {key!r} given twice, first on line {first[key]}", key_node.start_mark)
+                    first[key] = key_node.start_mark.line + 1
+                except TypeError:  # (an unhashable key: PyYAML's own error says so)
+                    continue
+        return super().construct_mapping(node, deep=deep)
 
 
 _Yaml12Floats.add_implicit_resolver(

@@ -50,6 +50,13 @@ def test_a_missing_configuration_file_is_one_line(tmp_path):
     ("deviations:\n  tolerance_m: \"0.05\"\n", "deviations.tolerance_m: Input should be a valid number"),
     ("backend:\n  write_every: true\n", "backend.write_every: Input should be a valid integer"),
     ("deviations:\n  online_refine: 1\n", "deviations.online_refine: Input should be a valid boolean"),
+    # (passed, and `bimgraph bim` kept every sliver)
+    ("bim:\n  min_face_area_m2: -1\n", "bim.min_face_area_m2: Input should be greater than or equal to 0"),
+    # a key given twice: PyYAML kept the last one silently
+    ("bim:\n  min_face_area_m2: 0.1\n  min_face_area_m2: 0.2\n",
+     "line 3: invalid YAML (key 'min_face_area_m2' given twice, first on line 2)"),
+    ("bim: {threads: 1, threads: 2}\n", "line 1: invalid YAML (key 'threads' given twice, first on line 1)"),
+    ("bim:\n  threads: 1\nsim: {}\nbim:\n  include_slabs: true\n", "line 4: invalid YAML (key 'bim' given twice, first on line 1)"),
 ])
 def test_check_refuses_what_a_run_could_not_use(tmp_path, yaml, message):
     (tmp_path / "c.yaml").write_text(yaml)
@@ -77,6 +84,16 @@ def test_integers_for_floats_and_lists_for_ranges_are_what_yaml_writes(tmp_path)
     path.write_text("deviations:\n  k_sigma: 2\nsim:\n  initial_rot_error_deg: [1, 3.5]\n")
     cfg = load_config(path)
     assert cfg.deviations.k_sigma == 2.0 and cfg.sim.initial_rot_error_deg == (1.0, 3.5)
+
+
+def test_a_merge_key_may_be_overridden(tmp_path):
+    """A merge (`<<:`) and then a key it brought is YAML's way to override it, not a key given twice."""
+    from bimgraph.config import load_config
+
+    path = tmp_path / "c.yaml"
+    path.write_text("deviations:\n  <<: {tolerance_m: 0.03, k_sigma: 4}\n  k_sigma: 2\n")
+    cfg = load_config(path)
+    assert cfg.deviations.k_sigma == 2.0 and cfg.deviations.tolerance_m == 0.03
 
 
 def test_the_default_configuration_is_valid(tmp_path):

@@ -81,6 +81,9 @@ def test_face_moved_to_another_plane():
         (lambda f: f.update(id=""), "faces[0].id: String should have at least 1 character"),
         (lambda f: f.update(centre=[100, 5, 100]), "faces[0]: centre .* is not on the face"),
         (lambda f: f.update(kind="slab_top"), "faces[0]: a slab_top face must be horizontal"),
+        # (a floor written as a wall loaded, and was matched as one)
+        (lambda f: f.update(normal=[0, 0, 1], offset=0.0, polygon=[[0, 0, 0], [4, 0, 0], [4, 4, 0], [0, 4, 0]]),
+         "faces[0]: a wall face must be within 30 degrees of vertical"),
         (lambda data: data.update(T_W_B=[0, 0, 0, 0, 0, 0, 5]), "T_W_B: quaternion has norm 5.0000"),
         # shapes that would load as another area than the file says, then break a run's geometry
         (lambda f: f.update(polygon=[[0, 5, 0], [4, 5, 3], [4, 5, 0], [0, 5, 3]]),
@@ -108,6 +111,44 @@ def test_a_door_at_floor_level_may_be_a_hole_touching_the_outline(tmp_path):
     path = tmp_path / "map.json"
     path.write_text(json.dumps(data))
     assert load_plane_map(path).faces[0].area == pytest.approx(10.0)
+
+
+def test_a_wall_may_lean_less_than_the_import_allows(tmp_path):
+    """Up to 30 degrees out of vertical, as the IFC import's bound for a leaning wall's side."""
+    lean = np.radians(29.0)
+    n = [0.0, -np.cos(lean), np.sin(lean)]
+    polygon = [[0, 0, 0], [4, 0, 0], [4, np.sin(lean), np.cos(lean)], [0, np.sin(lean), np.cos(lean)]]
+    data = json.loads(json.dumps(HAND_MAP))
+    data["faces"][0].update(normal=n, offset=0.0, polygon=polygon)
+    path = tmp_path / "map.json"
+    path.write_text(json.dumps(data))
+    assert load_plane_map(path).faces[0].area == pytest.approx(4.0)
+
+
+def test_a_repeated_closing_point_is_dropped(tmp_path):
+    """Hand-written maps come from closed polylines copied out of drawings: the last point
+    repeating the first is no corner (it loaded as a fifth one)."""
+    data = json.loads(json.dumps(HAND_MAP))
+    face = data["faces"][0]
+    face["polygon"].append(face["polygon"][0])
+    face["holes"] = [[[1, 5, 1], [2, 5, 1], [2, 5, 2], [1, 5, 2], [1, 5, 1]]]
+    path = tmp_path / "map.json"
+    path.write_text(json.dumps(data))
+    loaded = load_plane_map(path).faces[0]
+    assert loaded.polygon == [tuple(map(float, p)) for p in HAND_MAP["faces"][0]["polygon"]]
+    assert len(loaded.holes[0]) == 4 and loaded.area == pytest.approx(11.0)
+
+
+def test_a_byte_order_mark_is_read_past(tmp_path):
+    """Windows editors write one; it was "Unexpected UTF-8 BOM (decode using utf-8-sig)"."""
+    path = tmp_path / "map.json"
+    path.write_bytes(b"\xef\xbb\xbf" + json.dumps(HAND_MAP).encode())
+    assert load_plane_map(path).faces[0].id == "north"
+    _write_sequence(tmp_path / "seq", [KF, dict(KF, index=1, stamp=0.1)])
+    for name in ("sequence.json", "keyframes.jsonl"):
+        file = tmp_path / "seq" / name
+        file.write_bytes(b"\xef\xbb\xbf" + file.read_bytes())
+    assert len(load_sequence(tmp_path / "seq").keyframes) == 2
 
 
 def test_not_json(tmp_path):

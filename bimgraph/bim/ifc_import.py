@@ -18,7 +18,7 @@ import shapely
 
 from bimgraph.bim import curved, faces as F
 from bimgraph.bim.ifc_read import ModelReader, missing_references, open_model, unbalanced_statement
-from bimgraph.bim.planemap import BimFace, PlaneMap, Space
+from bimgraph.bim.planemap import WALL_MAX_LEAN_RAD, BimFace, PlaneMap, Space
 from bimgraph.bim.rooms import Claim, Junctions, Rooms, boundary_claims, split_at, split_face
 from bimgraph.config import BimImportConfig
 from bimgraph.errors import FormatError, InputError
@@ -26,9 +26,6 @@ from bimgraph.geometry import pose_to_tum
 
 # the parser's problems with a file listed one by one; the rest counted
 _PARSE_WARNINGS = 5
-# A wall's face leaning further than this out of vertical is where a roof cuts it, not a
-# side of it that the import left out.
-_LEANING_RAD = np.radians(30.0)
 
 ORIGIN = ("the IfcBuilding's placement (its local coordinate system; the project's world "
           "coordinate system if there is no IfcBuilding), metres, z up")
@@ -219,7 +216,7 @@ def _sides(reader: ModelReader, wall, mesh, cfg, angle_tol: float, axis_tol: flo
     found = F.vertical_faces(mesh.V, mesh.T, np.radians(cfg.vertical_tol_deg), angle_tol,
                              cfg.coplanar_distance_m, cfg.grid_m, along if straight else None, axis_tol)
     if straight:
-        area, slope = F.sloped_sides(mesh.V, mesh.T, np.radians(cfg.vertical_tol_deg), along, axis_tol, _LEANING_RAD)
+        area, slope = F.sloped_sides(mesh.V, mesh.T, np.radians(cfg.vertical_tol_deg), along, axis_tol, WALL_MAX_LEAN_RAD)
         if area >= cfg.min_face_area_m2:
             log(f"warning: wall {_named(wall)}: {area:.2f} m2 of its sides lean up to "
                 f"{np.degrees(slope):.1f} deg out of vertical (more than vertical_tol_deg, {cfg.vertical_tol_deg}): not imported")

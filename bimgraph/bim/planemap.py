@@ -32,6 +32,10 @@ _ON_PLANE_TOL_M = 0.01
 _MIN_AREA_M2 = 1e-6
 # A slab face's normal is at most about 25 degrees off the vertical.
 _SLAB_MIN_UP = 0.9
+# A wall's face leaning further than this out of vertical is where a roof cuts it, not a side
+# (the IFC import leaves it out); a steeper "wall" in a hand-written map is a floor or a
+# ceiling, and would be matched as one.
+WALL_MAX_LEAN_RAD = np.radians(30.0)
 
 
 class Space(BaseModel):
@@ -72,6 +76,16 @@ class BimFace(BaseModel):
     def _unit(cls, normal):
         return require_unit(normal, "normal")
 
+    @field_validator("polygon")
+    @classmethod
+    def _open_polygon(cls, ring):
+        return open_ring(ring)
+
+    @field_validator("holes")
+    @classmethod
+    def _open_holes(cls, holes):
+        return [open_ring(hole) for hole in holes]
+
     @model_validator(mode="after")
     def _check_geometry(self):
         n = np.asarray(self.normal)
@@ -90,6 +104,9 @@ class BimFace(BaseModel):
             raise ValueError("polygon has zero area")
         if self.kind != "wall" and abs(n[2]) < _SLAB_MIN_UP:
             raise ValueError(f"a {self.kind} face must be horizontal, its normal is {self.normal}")
+        if self.kind == "wall" and abs(n[2]) > np.sin(WALL_MAX_LEAN_RAD):
+            raise ValueError(f"a wall face must be within {np.degrees(WALL_MAX_LEAN_RAD):.0f} degrees of vertical, its normal is {self.normal} "
+                             f"(a floor or ceiling is a slab_top or slab_bottom)")
         if self.centre is not None:
             given = np.asarray(self.centre)
             corners = np.asarray(self.polygon)
@@ -164,6 +181,14 @@ class PlaneMap(BaseModel):
 
     def walls(self) -> list[BimFace]:
         return [f for f in self.faces if f.kind == "wall"]
+
+
+def open_ring(ring: list) -> list:
+    """`ring` without a repeated closing point: a closed polyline copied from a drawing
+    repeats its first point last, which would count that corner twice."""
+    if len(ring) > 3 and tuple(ring[-1]) == tuple(ring[0]):
+        return ring[:-1]
+    return ring
 
 
 def polygon_area_centre(polygon, holes, normal) -> tuple[float, np.ndarray]:

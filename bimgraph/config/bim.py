@@ -10,7 +10,7 @@ from bimgraph.config.section import Section
 class BimImportConfig(Section):
     """IFC import."""
 
-    min_face_area_m2: float = Field(0.05, description="side faces smaller than this are dropped (wall ends, slivers)")
+    min_face_area_m2: float = Field(0.05, ge=0, description="side faces smaller than this are dropped (wall ends, slivers)")
     include_slabs: bool = Field(False, description="also export slab top and bottom faces as horizontal planes")
     vertical_tol_deg: float = Field(0.5, gt=0, description="a triangle is part of a vertical face when its normal is this close to horizontal")
     axis_tol_deg: float = Field(1.0, gt=0, description="a vertical face of a wall is a side face when it is this close to parallel to the wall's axis")

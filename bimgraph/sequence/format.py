@@ -216,7 +216,7 @@ def iter_keyframes(root: Path):
     """Yield keyframes one by one, validating each line as it comes."""
     path = existing_file(Path(root) / KEYFRAMES_FILE)
     previous = None
-    with path.open() as fh:
+    with path.open(encoding="utf-8-sig") as fh:  # (a byte-order mark, as Windows editors write, is no error)
         for lineno, line in _lines(fh, path):
             if not line.strip():
                 continue

@@ -190,6 +190,9 @@ def test_a_singular_graph_is_an_error_naming_the_variable():
         gtsam.ISAM2().update(graph, values)
     with pytest.raises(RuntimeError, match="other"), singular_as_error():
         raise RuntimeError("other")
+    # (the robust alignment's Cholesky of a marginal, on a walk 100 km from S's origin)
+    with pytest.raises(SingularError, match="not positive definite"), singular_as_error():
+        np.linalg.cholesky(-np.eye(2))
 
 
 def test_bim_association_alone(scene, cfg):

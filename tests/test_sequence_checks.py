@@ -35,6 +35,15 @@ def test_planes_without_polygons_are_counted():
     assert sequence_warnings(keyframes([None] * 5, polygon=False) + keyframes([None] * 5)) == []
 
 
+def test_keyframes_far_from_the_origin_of_s_are_told():
+    """A walk 100 km from S's origin (coordinates of a map projection) failed with a traceback
+    from the robust alignment's Cholesky, and at 10 km with "covariances far overconfident"."""
+    far = [kf.model_copy(update={"T_S_C": (kf.T_S_C[0] + 1e5, 2e4, *kf.T_S_C[2:])}) for kf in keyframes([None] * 5)]
+    (warning,) = sequence_warnings(far)
+    assert warning.startswith("keyframes lie up to 102 km from the origin of S") and "subtract the first keyframe" in warning
+    assert sequence_warnings(keyframes([None] * 5)) == []
+
+
 def test_the_run_prints_the_warning(world, tmp_path):
     _, root = world
     sequence = load_sequence(root)

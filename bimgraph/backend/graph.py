@@ -43,9 +43,14 @@ _VARIABLES = {"x": "keyframe {}", "l": "landmark {}", "e": "the extrinsic", "a":
 @contextmanager
 def singular_as_error():
     """gtsam's IndeterminantLinearSystemException (a RuntimeError in Python) as a
-    `SingularError` that names the variable it was found at."""
+    `SingularError` that names the variable it was found at; numpy's LinAlgError (a Cholesky)
+    as one too."""
     try:
         yield
+    except np.linalg.LinAlgError:  # (the robust alignment's Cholesky of a marginal: `reduced`)
+        raise SingularError("the graph's information matrix is not positive definite: a variable no factor constrains, "
+                            "covariances far overconfident against the others, or poses too far from S's origin for "
+                            "double precision") from None
     except RuntimeError as err:
         if "Indetermin" not in str(err):
             raise

@@ -13,6 +13,10 @@ _GROWTH = 10.0
 _GROWING_STEPS = 0.9
 # most plane detections without a polygon: a front-end that gives none (a floor's may lack one)
 _BARE_FRACTION = 0.9
+# keyframes farther than this from S's origin: T_B_S turns about that origin, so its rotation
+# couples with its translation by this lever (1 km: 2 deg there is 35 m at the walk; at 10 km
+# and more, the graph's linear systems are singular to double precision)
+_FAR_M = 1000.0
 
 
 def sequence_warnings(keyframes: list[Keyframe]) -> list[str]:
@@ -28,4 +32,9 @@ def sequence_warnings(keyframes: list[Keyframe]) -> list[str]:
         out.append(f"{bare} of {len(planes)} plane detections have no polygon: without their extents the views of one "
                    "wall are seldom joined into one landmark, and few or none are matched to BIM faces (the "
                    "associations' extent gates and geometric filters need them; docs/formats.md)")
+    if keyframes and (far := max(float(np.linalg.norm(kf.T_S_C[:3])) for kf in keyframes)) > _FAR_M:
+        out.append(f"keyframes lie up to {far / 1000:.3g} km from the origin of S: T_B_S turns about that origin, so "
+                   "its rotation's uncertainty moves the walk by that lever, and the graph loses precision (beyond "
+                   "about 10 km it is singular); give poses in a frame near the walk (e.g. subtract the first "
+                   "keyframe's position, and move the initial alignment with it)")
     return out

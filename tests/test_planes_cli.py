@@ -200,6 +200,8 @@ def test_a_depth_list_out_of_time_order_is_refused_naming_the_line(tmp_path, ord
 @pytest.mark.parametrize("options, message", [
     (["--fx", "-500", "--fy", "500", "--cx", "320", "--cy", "240"], "fx: Input should be greater than 0"),
     (["--fx", "nan", "--fy", "500", "--cx", "320", "--cy", "240"], "fx: Input should be a finite number"),
+    # (fx 1e-9 px gave planes of 1e22 m2)
+    (["--fx", "1e-9", "--fy", "1e-9", "--cx", "320", "--cy", "240"], "field of view of 180.0 degrees (at most 170)"),
     (["--fx", "500", "--fy", "500", "--cx", "320", "--cy", "240", "--max-dt", "-1"], "--max-dt must be at least 0"),
 ])
 def test_bad_option_values_are_one_line_exit_4(tmp_path, options, message):

@@ -69,7 +69,7 @@ def test_nearest_association():
 def test_camera_files(tmp_path):
     (tmp_path / "cam.yaml").write_text("width: 640\nheight: 480\nfx: 525\nfy: 525\ncx: 319.5\ncy: 239.5\n")
     assert load_camera(tmp_path / "cam.yaml").fx == 525
-    (tmp_path / "cam.json").write_text(json.dumps({"width": 640, "height": 480, "fx": 1, "fy": 1, "cx": 0, "cy": 0, "depth_scale": 1000}))
+    (tmp_path / "cam.json").write_text(json.dumps({"width": 640, "height": 480, "fx": 500, "fy": 500, "cx": 0, "cy": 0, "depth_scale": 1000}))
     assert load_camera(tmp_path / "cam.json").depth_scale == 1000
     (tmp_path / "bad.yaml").write_text("width: 640\nfx: 525\n")
     with pytest.raises(FormatError, match="bad.yaml: height"):

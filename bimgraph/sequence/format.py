@@ -50,6 +50,9 @@ def _check_square_psd(value, size: int):
     return value
 
 
+_MAX_FOV_DEG = 170.0
+
+
 class Camera(BaseModel):
     """Pinhole intrinsics of the depth (and colour) images; depth PNG value = metres * depth_scale."""
 
@@ -66,6 +69,11 @@ class Camera(BaseModel):
     def _principal_point_in_the_image(self):
         if not (0 <= self.cx <= self.width and 0 <= self.cy <= self.height):
             raise ValueError(f"the principal point ({self.cx}, {self.cy}) lies outside the {self.width}x{self.height} image")
+        # (a pinhole sees less than 180 degrees; fx = 1e-9 px gave planes of 1e22 m2)
+        fov = np.degrees(2 * np.arctan(max(self.width / self.fx, self.height / self.fy) / 2))
+        if fov > _MAX_FOV_DEG:
+            raise ValueError(f"fx {self.fx:g} and fy {self.fy:g} px give the {self.width}x{self.height} image a field of view "
+                             f"of {fov:.1f} degrees (at most {_MAX_FOV_DEG:g}): focal lengths are in pixels")
         return self
 
     @property

@@ -5,9 +5,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bimgraph.backend import Alignment, align_from_seeds, unobservable_directions
-from bimgraph.config import BackendConfig
-from bimgraph.geometry import exp_se3, inverse, make_pose, plane_from_frame
+from bimgraph.backend import Alignment, Backend, align_from_seeds, unobservable_directions
+from bimgraph.backend.pipeline import seed_alignment
+from bimgraph.backend.synthetic import make_scene
+from bimgraph.config import BackendConfig, Config
+from bimgraph.geometry import exp_se3, inverse, make_pose, normalise_plane, plane_from_frame
 
 
 @pytest.fixture(scope="module")
@@ -104,3 +106,34 @@ def test_seed_alignment_carries_the_detections_noise(cfg):
     # a keyframe's pose in S moves the plane it saw, not the alignment
     np.testing.assert_allclose(align_from_seeds(planes_S, planes_B, cfg, prior, seen=[(np.eye(4), None)] * 3).T_B_S,
                                T_B_S, atol=1e-6)
+
+
+def test_seed_pairs_count_once(cfg):
+    """Seed pairs start the graph matched, and the start's covariance holds none of their
+    information: it held the registration's, so their detections and their faces' tolerance
+    counted twice (offices 1-2 seeded with their first keyframe's walls: NEES 11.7 and 8.3
+    offline; 4.9 and 2.0 now)."""
+    scene = make_scene(20, rooms=(2, 2), seed=3)
+    kf = scene.keyframes[3].model_copy(update={"index": 0})  # (the first to see two walls)
+    seeds = [(0, i, scene.truth[3, i]) for i in range(len(kf.planes)) if scene.truth[3, i]]
+    assert len(seeds) == 2
+    start = seed_alignment([kf], scene.plane_map, seeds, Config(), scene.initial)
+    assert start.seeds == {(k, i): face for k, i, face in seeds}
+    normals_B = np.array([scene.plane_map.faces[scene.plane_map.index[face]].plane[:3] for _, _, face in seeds])
+    # (a translation along each seeded face's normal: what the seeds observe best)
+    for n_B in normals_B:
+        u = np.r_[np.zeros(3), scene.initial.T_B_S[:3, :3].T @ n_B]
+        assert u @ start.cov @ u > 50 * 0.2**2  # (the sequence's own alignment: 20 cm)
+    backend = Backend(scene.plane_map, cfg, start)
+    first = backend.process(kf)
+    assert {(a.observation, a.face) for a in first.associations if a.face} >= {(i, face) for _, i, face in seeds}
+    # the seeds' information is in the graph once: the extrinsic after keyframe 0 is as sure as
+    # the registration of the seeds alone (where it was surer, by counting them twice)
+    faces = [scene.plane_map.faces[scene.plane_map.index[face]] for _, _, face in seeds]
+    planes_S = [plane_from_frame(normalise_plane(kf.planes[i].plane), kf.pose) for _, i, _ in seeds]
+    seeded = align_from_seeds(np.array(planes_S), np.array([f.plane for f in faces]), cfg, scene.initial,
+                              np.array([f.centre for f in faces]), seen=[(kf.pose, kf.planes[i].cov) for _, i, _ in seeds])
+    for n_B in normals_B:
+        u = np.r_[np.zeros(3), first.T_B_S[:3, :3].T @ n_B]
+        assert u @ first.cov_T_B_S @ u == pytest.approx(u @ seeded.cov @ u, rel=0.25)
+

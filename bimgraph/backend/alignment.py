@@ -13,7 +13,7 @@ direction is unobservable where that sum has (almost) no weight.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
@@ -25,17 +25,33 @@ from bimgraph.errors import ConfigError, InputError
 from bimgraph.geometry import least_rotation, make_pose, plane_to_frame, rotation_from_correlation
 
 _WEAK = 1e6  # variance factor of the prior in the directions the seeds observe
+# (the same in a graph whose seeds come at a later keyframe: until then, widened 1e6, the
+# extrinsic's information was 1e-11 of the first pose's, and iSAM2 found it singular; at 1e2
+# a hundredth of the prior's information counts where the seeds observe)
+_WEAK_START = 1e2
 
 
 @dataclass
 class Alignment:
     """`T_B_S` and its 6x6 covariance (gtsam Pose3 tangent: rotation, then translation);
-    `gravity_aligned` when S has z up, as B has."""
+    `gravity_aligned` when S has z up, as B has. `seeds`: plane detections (keyframe index,
+    plane index) the user paired with BIM faces (face ids), which the graph takes as matched;
+    the covariance then holds none of their information (`seeded_start`)."""
 
     T_B_S: np.ndarray
     cov: np.ndarray
     unobservable: list[dict] = field(default_factory=list)
     gravity_aligned: bool = False
+    seeds: dict[tuple[int, int], str] = field(default_factory=dict)
+    # (with seeds: the largest sigmas, rotation in rad and translation in m, of the alignment
+    # the user gave, which the directions no face observes keep)
+    given_sigmas: tuple[float, float] | None = None
+
+    def largest_sigmas(self) -> tuple[float, float]:
+        """The largest sigmas (rad, m) of the alignment as the user gave it."""
+        if self.given_sigmas is not None:
+            return self.given_sigmas
+        return float(np.sqrt(np.diag(self.cov)[:3].max())), float(np.sqrt(np.diag(self.cov)[3:].max()))
 
     @classmethod
     def from_sigmas(cls, T_B_S: np.ndarray, rot_deg: float, trans_m: float) -> "Alignment":
@@ -92,18 +108,35 @@ def levelled(alignment: Alignment, sigma_tilt_rad: float) -> Alignment:
     info = np.linalg.inv(alignment.cov)
     info[[0, 1], [0, 1]] += 1.0 / sigma_tilt_rad**2
     cov = np.linalg.inv(info)
-    return Alignment(T_B_S, 0.5 * (cov + cov.T), alignment.unobservable, True)
+    return replace(alignment, T_B_S=T_B_S, cov=0.5 * (cov + cov.T), gravity_aligned=True)
 
 
 def unlocked_covariance(alignment: Alignment, directions: list[dict]) -> np.ndarray:
     """What to add to an estimate's covariance so that locked directions report the initial
     alignment's uncertainty again (they were held, not measured)."""
-    sigma_rot = np.sqrt(np.diag(alignment.cov)[:3].max())
-    sigma_trans = np.sqrt(np.diag(alignment.cov)[3:].max())
+    sigma_rot, sigma_trans = alignment.largest_sigmas()
     extra = np.zeros((6, 6))
     for rotation, u in _tangent_directions(alignment.T_B_S, directions):
         extra += np.outer(u, u) * (sigma_rot if rotation else sigma_trans) ** 2
     return extra
+
+
+def prior_beside_seeds(prior: Alignment, unobservable: list[dict], weak: float = _WEAK) -> np.ndarray:
+    """The covariance of `prior` as it stands beside seed pairs that leave `unobservable`
+    unobserved: it speaks only there (at its largest sigmas), so that it biases nothing the
+    seeds observe (where its variance is `weak` times its own)."""
+    return lock_directions(Alignment(prior.T_B_S, prior.cov * weak), unobservable, *prior.largest_sigmas())
+
+
+def seeded_start(prior: Alignment, seeded: Alignment, seeds: dict[tuple[int, int], str]) -> Alignment:
+    """What a graph whose `seeds` (detection -> face) are matched from the start begins with:
+    the registration's `T_B_S` (`seeded`, from `align_from_seeds`), under the prior beside the
+    seeds alone. The seeds' own information comes in with their plane-to-BIM factors; held in
+    the start's covariance as well, it counted twice (offices 1-2 seeded with their first
+    keyframe's walls ended with NEES 11.7 and 8.3), and a seed on a wall built off plan kept
+    pulling the extrinsic after the robust alignment had let the wall go."""
+    return Alignment(seeded.T_B_S, prior_beside_seeds(prior, seeded.unobservable, _WEAK_START), seeded.unobservable,
+                     seeded.gravity_aligned, dict(seeds), prior.largest_sigmas())
 
 
 def _rotation_from_normals(normals_S: np.ndarray, normals_B: np.ndarray, R_prior: np.ndarray, gravity: bool) -> np.ndarray:
@@ -153,13 +186,10 @@ def align_from_seeds(planes_S: np.ndarray, planes_B: np.ndarray, cfg: BackendCon
     t = np.linalg.solve(info_t, n_B.T @ (planes_S[:, 3] - planes_B[:, 3]) + 1e-6 * prior.T_B_S[:3, 3])
     guess = make_pose(R, t)
 
-    # the prior speaks only where the seeds are silent, so that it biases nothing else
     unobservable = unobservable_directions(planes_B[:, :3], cfg.unobservable_min_angle_deg)
-    sigma_rot, sigma_trans = np.sqrt(np.diag(prior.cov)[:3].max()), np.sqrt(np.diag(prior.cov)[3:].max())
-    weak = Alignment(prior.T_B_S, prior.cov * _WEAK)
     build = FactorBuilder(cfg)
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-    graph.add(build.extrinsic_prior(prior.T_B_S, lock_directions(weak, unobservable, sigma_rot, sigma_trans)))
+    graph.add(build.extrinsic_prior(prior.T_B_S, prior_beside_seeds(prior, unobservable)))
     values.insert(E, pose3(guess).inverse())
     # Each seed plane as its keyframe saw it (fixed at its pose in S), under the detection's
     # covariance: at the floor instead, one pair of an office walk, a plane 4.8 m off with its

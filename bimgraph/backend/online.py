@@ -84,6 +84,7 @@ class Backend:
         self.landmarks = LandmarkTable()
         self.listener = listener or Listener()
         self.oracle = oracle
+        self.seeds = initial.seeds
         self._landmark_of_face: dict[str, int] = {}
         self._previous: tuple[Keyframe, np.ndarray] | None = None  # the keyframe before and its estimate
         self.odometry = OdometryModel(self.build)  # the front-end's drift, taken out as found
@@ -267,12 +268,23 @@ class Backend:
             self._observe(k, j, obs.plane_C, obs.cov, T_S_C)
         self.matches.seen(k, obs)
         lm = self.landmarks[j]
+        if self.oracle is None and (k, obs.index) in self.seeds:
+            self._seed(lm, self.seeds[k, obs.index])
         lm.add_observation(k, obs.index, transform_points(self.landmarks.T_A_S[j] @ T_S_C, obs.points_C), obs.area,
                            self.cfg.slam_association.extent_max_points)
         # (its bounding sphere is recomputed by `_refresh`, which sets every observed landmark's estimate)
         if lm.frozen is None and len(lm.observations) >= self.cfg.isam2.freeze_after and self._freezable(lm):
             lm.frozen = FrozenPlane.of(lm.T_S_A, lm.plane_A, lm.cov_A)
         return j
+
+    def _seed(self, lm: Landmark, face: str) -> None:
+        """Match the landmark of a seed pair's detection to the pair's face (the user's word),
+        unless another landmark holds that face already (the face's match stands)."""
+        if lm.face == face or lm.frozen is not None or any(other.face == face for other in self.landmarks.current()):
+            return
+        if lm.face is not None:
+            self.matches.unmatch(lm, f"paired with {face} by a seed")
+        self.matches.set_face(lm.id, face, 0.0)
 
     def _observe(self, k: int, j: int, plane_C: np.ndarray, cov: np.ndarray, T_S_C: np.ndarray | None = None) -> None:
         """Keyframe k's observation of landmark j (not frozen) into the graph; where keyframe k

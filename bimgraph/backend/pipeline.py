@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bimgraph.backend.alignment import Alignment, align_from_seeds
+from bimgraph.backend.alignment import Alignment, align_from_seeds, seeded_start
 from bimgraph.backend.depth_tilt import DepthTilt
 from bimgraph.backend.graph import BatchSolver, singular_as_error
 from bimgraph.backend.offline import OfflineEstimator, run_offline
@@ -104,7 +104,8 @@ def parse_seed(text: str) -> tuple[int, int, str]:
 
 def seed_alignment(keyframes: list[Keyframe], plane_map: PlaneMap, seeds: list[tuple[int, int, str]],
                    cfg: Config, prior: Alignment) -> Alignment:
-    """Plane registration of seed pairs (keyframe, plane index, BIM face id)."""
+    """The start of a graph whose seed pairs (keyframe, plane index, BIM face id) are matched
+    from the outset: `T_B_S` by plane registration of the pairs (`seeded_start`)."""
     by_index = {kf.index: kf for kf in keyframes}
     planes_S, planes_B, centres_B, seen = [], [], [], []
     for k, i, face in seeds:
@@ -117,8 +118,9 @@ def seed_alignment(keyframes: list[Keyframe], plane_map: PlaneMap, seeds: list[t
         planes_B.append(plane_map.faces[plane_map.index[face]].plane)
         centres_B.append(plane_map.faces[plane_map.index[face]].centre)
         seen.append((kf.pose, kf.planes[i].cov))
-    return align_from_seeds(np.array(planes_S), np.array(planes_B), cfg.backend, prior, np.array(centres_B),
-                            [f"{k}:{i}:{face}" for k, i, face in seeds], seen)
+    seeded = align_from_seeds(np.array(planes_S), np.array(planes_B), cfg.backend, prior, np.array(centres_B),
+                              [f"{k}:{i}:{face}" for k, i, face in seeds], seen)
+    return seeded_start(prior, seeded, {(k, i): face for k, i, face in seeds})
 
 
 def oracle_of(root: Path) -> dict[tuple[int, int], str | None]:

@@ -108,6 +108,10 @@ def test_planes_refuses_a_principal_point_outside_the_image_and_an_empty_traject
 
 
 def test_planes_errors(tmp_path):
+    assert_one_line_error(runner.invoke(app, ["planes", str(tmp_path / "absent")]), 2, "absent: no such folder")
+    (tmp_path / "sequence.json").write_text("{}")
+    assert_one_line_error(runner.invoke(app, ["planes", str(tmp_path / "sequence.json")]), 2, "sequence.json: a file, not a folder")
+    (tmp_path / "sequence.json").unlink()
     result = runner.invoke(app, ["planes", str(tmp_path)])
     assert result.exit_code == 2 and "for a TUM RGB-D folder give --trajectory" in result.output
     result = runner.invoke(app, ["planes", str(tmp_path), "--fx", "500"])

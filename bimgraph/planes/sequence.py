@@ -127,6 +127,9 @@ def open_input(folder: Path, trajectory: Path | None = None, intrinsics: Path | 
     sequence. Which options go together, and `max_dt`, are checked before any file is read;
     the pinhole values once the first depth image gives the image size."""
     folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"{folder}: {'a file, not a folder' if folder.exists() else 'no such folder'} (give the sequence "
+                         "folder, or a TUM RGB-D folder with --trajectory)")
     given = [v is not None for v in pinhole]
     if any(given) and not all(given):
         raise ConfigError("give all four of --fx --fy --cx --cy")

@@ -82,10 +82,10 @@ def test_offline_merges_only_in_a_round_that_split_nothing(scene, cfg, monkeypat
     compared whole with the landmark of one section, it is one plane with neither, and that
     landmark would lose its face for good (deviation seed 2: a wall's section 6.8 cm off).
     Merging waits for the next round, whose marginals know the new landmarks."""
-    from bimgraph.backend.offline import OfflineEstimator
+    from bimgraph.backend.reassociation import Reassociation
 
     calls = []
-    real_split, real_merge = OfflineEstimator._split, OfflineEstimator._merge
+    real_split, real_merge = Reassociation.split, Reassociation.merge
 
     def split(self, values):
         real = real_split(self, values)
@@ -96,8 +96,8 @@ def test_offline_merges_only_in_a_round_that_split_nothing(scene, cfg, monkeypat
         calls.append("merge")
         return real_merge(self, values, marginals)
 
-    monkeypatch.setattr(OfflineEstimator, "_split", split)
-    monkeypatch.setattr(OfflineEstimator, "_merge", merge)
+    monkeypatch.setattr(Reassociation, "split", split)
+    monkeypatch.setattr(Reassociation, "merge", merge)
     run_offline(scene.keyframes, scene.plane_map, cfg, scene.initial)
     assert calls[:3] == ["split", "split", "merge"]
 
@@ -109,12 +109,12 @@ def test_offline_judges_each_face_once_even_when_the_rounds_run_out(scene, monke
     off outvoted the sound walls, extrinsic 10.5 cm off). Here the first round's split is
     made to leave a matched landmark's later observations on a second landmark of its face."""
     from bimgraph.backend.graph import L
-    from bimgraph.backend.offline import OfflineEstimator
+    from bimgraph.backend.reassociation import Reassociation
     from bimgraph.backend.robust_alignment import RobustAlignment
 
     cfg = BackendConfig()
     cfg.offline.max_rounds = 1
-    real_split, real_decide = OfflineEstimator._split, RobustAlignment.decide
+    real_split, real_decide = Reassociation.split, RobustAlignment.decide
     splits, judged = [], []
 
     def split(self, values):
@@ -134,7 +134,7 @@ def test_offline_judges_each_face_once_even_when_the_rounds_run_out(scene, monke
         judged.append([face for _, face in matches])
         return real_decide(self, matches, reduced)
 
-    monkeypatch.setattr(OfflineEstimator, "_split", split)
+    monkeypatch.setattr(Reassociation, "split", split)
     monkeypatch.setattr(RobustAlignment, "decide", decide)
     run_offline(scene.keyframes, scene.plane_map, cfg, scene.initial)
     assert len(splits) == 1  # the rounds ran out after it
@@ -341,7 +341,7 @@ def test_offline_splits_a_landmark_per_section_in_the_order_it_saw_them():
     numbered in the order of their first observations: by a set of face ids, runs differed
     with Python's string hashing."""
     est, values = offline_with_one_landmark("r10S", ["r20S", "r00S", "r20S", "r10S", "r20S"])
-    assert est._split(values)
+    assert est.reassociation.split(values)
     assert [(x.face, [k for k, _ in x.observations]) for x in est.landmarks.items] == [
         ("r20S", [0, 2, 4]), ("r00S", [1]), ("r10S", [3])]
 
@@ -351,9 +351,9 @@ def test_offline_moves_a_landmark_wholly_on_another_section_to_it():
     observations all lie on another takes that one: the deviation report had blamed a
     basement wall for the coplanar wall above it."""
     est, values = offline_with_one_landmark("r10S", ["r20S"] * 3)
-    assert est._split(values)  # (a change: the next round solves with the face's own factor)
+    assert est.reassociation.split(values)  # (a change: the next round solves with the face's own factor)
     assert [(x.face, len(x.observations)) for x in est.landmarks.items] == [("r20S", 3)]
-    assert not est._split(values)
+    assert not est.reassociation.split(values)
 
 
 @pytest.mark.parametrize("tilt", [None, DepthTilt(Camera(width=640, height=480, fx=525.0, fy=525.0, cx=319.5, cy=239.5), 0.002)])

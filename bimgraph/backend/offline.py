@@ -22,7 +22,6 @@ verdicts; the rounds go on until neither changes.
 from __future__ import annotations
 
 import time
-from collections import Counter
 from collections.abc import Callable
 
 import gtsam
@@ -31,14 +30,13 @@ from scipy.special import expit
 
 from bimgraph.backend import drift
 from bimgraph.backend.alignment import Alignment
-from bimgraph.backend.associate_bim import candidate
 from bimgraph.backend.depth_tilt import DepthTilt, without_tilt
-from bimgraph.backend.graph import MOVED_ANCHOR, TILT, E, L, X, BatchSolver, bim_keys, cov_T_B_S, extrinsic_difference, pose3
-from bimgraph.backend.landmarks import KEPT, Landmark, transform_points
+from bimgraph.backend.graph import MOVED_ANCHOR, TILT, E, X, BatchSolver, bim_keys, cov_T_B_S, extrinsic_difference, pose3
+from bimgraph.backend.landmarks import KEPT, Landmark
 from bimgraph.backend.marginals import JointMarginals
-from bimgraph.backend.matches import face_misfit, one_plane_d2, revision_reason, unmatch
 from bimgraph.backend.odometry import OdometryModel
 from bimgraph.backend.online import Backend, Oracle, observations_of
+from bimgraph.backend.reassociation import Reassociation
 from bimgraph.backend.records import Association, KeyframeResult, Listener, Results
 from bimgraph.backend.reduced import reduced
 from bimgraph.backend.robust_alignment import RobustAlignment
@@ -46,9 +44,7 @@ from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig
 from bimgraph.deviations.estimate import RivalAlignment, about_estimate
 from bimgraph.errors import InputError
-from bimgraph.geometry import inverse, plane_from_frame
 from bimgraph.sequence.format import Keyframe
-from factors.plane import predict_local_plane
 
 # a rival consensus less likely than this changes no figure the run reports
 _NEGLIGIBLE = 1e-6
@@ -73,8 +69,9 @@ class OfflineEstimator:
         # other of two nearly equal consensuses, 10.5 cm off, before `_challenge`: now 2.6 cm)
         self.online = causal or Backend(plane_map, cfg, initial, None, oracle, drift_every=0, judge_every=0,
                                         merge=False, extrinsic_last=False)
-        self.faces, self.bim, self.landmarks = self.online.faces, self.online.matches.bim, self.online.landmarks
+        self.faces, self.landmarks = self.online.faces, self.online.landmarks
         self.oracle = oracle
+        self.reassociation = Reassociation(self.landmarks, self.faces, self.online.matches.bim, cfg, self.listener, self.online.matches.apart)
         self.judge = RobustAlignment(self.faces, self.online.build, self.landmarks, cfg.offline)
         self.odometry = OdometryModel(self.online.build)  # the front-end's drift and noise, as measured
         self.odometry.drift = self.online.odometry.drift  # (an online run's, as a start)
@@ -125,8 +122,9 @@ class OfflineEstimator:
             # after a split, deviation seed 2 went to the judgement with five landmarks on a
             # wall built 7 cm off, whose votes carried it (extrinsic 10.5 cm off)
             changed = self.oracle is None and (
-                self._revise(values) | self._associate(values, marginals) | (self._split(values) or self._merge(values, marginals))
-                if rounds <= self.cfg.offline.max_rounds else self._merge(values, marginals))
+                self.reassociation.revise(values) | self.reassociation.associate(values, marginals)
+                | (self.reassociation.split(values) or self.reassociation.merge(values, marginals))
+                if rounds <= self.cfg.offline.max_rounds else self.reassociation.merge(values, marginals))
             t_assoc += time.perf_counter() - t1
             if not changed and self.cfg.offline.gnc and set(self._matches()) != set(self.judge.verdicts):
                 t2 = time.perf_counter()
@@ -263,70 +261,6 @@ class OfflineEstimator:
                 values = solve(graph, values)
         return graph, values
 
-    def _split(self, values: gtsam.Values) -> bool:
-        """A landmark whose observations lie on several coplanar sections of a wall becomes one
-        landmark per section: built, the sections may differ by centimetres."""
-        T_B_S = values.atPose3(E).inverse().matrix()
-        split = False
-        for lm in self.landmarks.current():
-            faces = self.faces.observation_faces(lm.face, lm.centres_in(T_B_S))
-            counts = Counter(faces)
-            if lm.face is None:
-                continue
-            if len(counts) == 1:
-                # all on another section than the one matched (ExternalEarth seed 6: a wall's
-                # landmark matched, while the alignment was young, to the basement wall
-                # below it, coplanar; the report then blamed the basement wall)
-                split |= faces[0] != lm.face
-                lm.face = faces[0]
-                continue
-            lm.face = counts.most_common(1)[0][0]
-            # (in order of first observation: iterating a set of face ids would number the new
-            # landmarks by Python's string hashing, so that runs differed)
-            for face in [f for f in counts if f != lm.face]:
-                moved = [n for n, f in enumerate(faces) if f == face]
-                anchor = lm.observations[moved[0]][0]
-                T_S_A = values.atPose3(X(anchor)).matrix()
-                T_new_old = inverse(T_S_A) @ lm.T_S_A
-                new = Landmark(len(self.landmarks), anchor, plane_from_frame(lm.plane_A, T_new_old), lm.cov_A, T_S_A,
-                               face=face, score=lm.score)
-                for n in moved:
-                    centre = lm.centres_A[n]
-                    points = np.zeros((0, 3)) if centre is None else transform_points(T_new_old, centre[None])
-                    new.add_observation(*lm.observations[n], points, None, self.cfg.slam_association.extent_max_points)
-                self.landmarks.add(new)
-                values.insert(L(new.id), gtsam.OrientedPlane3(new.plane_A))
-                self.listener.on_association(new.id, face, new.score)
-            kept = [n for n, f in enumerate(faces) if f == lm.face]
-            lm.observations = [lm.observations[n] for n in kept]
-            lm.centres_A = [lm.centres_A[n] for n in kept]
-            split = True
-        return split
-
-    def _merge(self, values: gtsam.Values, marginals: JointMarginals) -> bool:
-        """Landmarks matched to one BIM face are one plane: the oldest absorbs the others, if
-        they pass `offline.merge_gate` as one plane. Two that do not are not both that wall (a board
-        leaning on it, a cabinet's front): the one farther from the face loses the match and
-        stays apart from it. (Coplanar sections of a wall stay apart: built, they may differ.)"""
-        by_face: dict[str, list] = {}
-        for lm in self.landmarks.current():
-            if lm.face is not None:
-                by_face.setdefault(lm.face, []).append(lm)
-        changed = False
-        for face, same in by_face.items():
-            keep = min(same, key=lambda lm: (lm.anchor, lm.id))
-            for other in (lm for lm in same if lm is not keep):
-                changed = True
-                if one_plane_d2(keep, other, marginals) <= self.cfg.offline.merge_gate:
-                    self.landmarks.merge(keep, other, self.cfg.slam_association.extent_max_points)
-                    values.erase(L(other.id))
-                    continue
-                worse = max((keep, other), key=lambda lm: face_misfit(lm, face, self.faces, values.atPose3(E), self.cfg.bim_association))
-                self.online.matches.apart.add((worse.id, face))
-                unmatch(worse, "not one plane with another landmark of its face", self.listener)
-                break  # the face's other landmarks meet the one left next round
-        return changed
-
     def _observed_planes(self, values, marginals, bim_factor: Callable[[Landmark], gtsam.NonlinearFactor | None]) -> list:
         """Every active landmark as the deviation step reads it; a matched landmark's plane-to-BIM
         factor (`bim_factor`) is the one of the graph `values` and `marginals` solve."""
@@ -395,33 +329,6 @@ class OfflineEstimator:
                        bim_tolerance=self.judge.tolerance, frontend_drift=self.odometry.summary() if self.cfg.offline.estimate_drift else None,
                        alignment_challenge=self.challenge, rival_alignment=rival,
                        depth_tilt_sigma_per_m=self.tilt.sigma_per_m if self.tilt is not None else None)
-
-    def _revise(self, values: gtsam.Values) -> bool:
-        changed = False
-        T_S_B = values.atPose3(E)
-        for lm in self.landmarks.current():
-            if lm.face is None:
-                continue
-            plane_B = predict_local_plane(T_S_B, pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A))
-            reason = revision_reason(plane_B, self.faces, lm.face, self.cfg.bim_association)
-            if reason is not None:
-                unmatch(lm, reason, self.listener)
-                changed = True
-        return changed
-
-    def _associate(self, values: gtsam.Values, marginals: JointMarginals) -> bool:
-        todo = [lm for lm in self.landmarks.current() if lm.face is None and self.bim.eligible(lm.area, len(lm.observations))]
-        if not todo:
-            return False
-        candidates = [c for c in (candidate(lm, values.atPose3(E), marginals, self.bim) for lm in todo) if c is not None]
-        # a face merging took a landmark off would only pull it back: it stays apart
-        matches = [m for m in self.bim.match(candidates) if (m.landmark, m.face) not in self.online.matches.apart]
-        for m in matches:
-            lm = self.landmarks[m.landmark]
-            lm.face, lm.score = m.face, m.score
-            self.listener.on_association(lm.id, m.face, m.score)
-        return bool(matches)
-
 
 def run_offline(keyframes: list[Keyframe], plane_map: PlaneMap, cfg: BackendConfig, initial: Alignment,
                 listener: Listener | None = None, oracle: Oracle | None = None, tilt: DepthTilt | None = None) -> Results:

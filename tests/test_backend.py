@@ -315,7 +315,7 @@ def test_a_landmarks_plane_to_bim_factor_is_replaced_and_left_out_of_the_batch_g
 
 def offline_with_one_landmark(matched: str, seen_on: list[str]):
     """An offline estimator on three rooms in a row whose one landmark, matched to south face
-    `matched`, has seen the centre of face `seen_on[k]` at keyframe k; and the values `_split`
+    `matched`, has seen the centre of face `seen_on[k]` at keyframe k; and the values `Reassociation.split`
     reads."""
     from bimgraph.backend.graph import E, L, X
     from bimgraph.backend.offline import OfflineEstimator

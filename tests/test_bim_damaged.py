@@ -11,7 +11,7 @@ from ifc_house import house, wall_named
 from typer.testing import CliRunner
 
 from bimgraph.bim.ifc_import import import_ifc
-from bimgraph.bim.ifc_read import unbalanced_statement
+from bimgraph.bim.ifc_open import unbalanced_statement
 from bimgraph.bim.ifc_write import write_ifc
 from bimgraph.cli import app
 from bimgraph.config import BimImportConfig

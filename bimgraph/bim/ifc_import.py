@@ -17,7 +17,8 @@ import numpy as np
 import shapely
 
 from bimgraph.bim import curved, faces as F
-from bimgraph.bim.ifc_read import ModelReader, missing_references, open_model, unbalanced_statement
+from bimgraph.bim.ifc_open import missing_references, open_model, unbalanced_statement
+from bimgraph.bim.ifc_read import ModelReader
 from bimgraph.bim.planemap import WALL_MAX_LEAN_RAD, BimFace, PlaneMap, Space
 from bimgraph.bim.rooms import Claim, Junctions, Rooms, boundary_claims, split_at, split_face
 from bimgraph.config import BimImportConfig

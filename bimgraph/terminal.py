@@ -25,23 +25,22 @@ def _error(message: str, exit_code: int) -> int:
 
 
 @contextlib.contextmanager
-def _one_line_usage_errors(group_ctx=None):
+def _one_line_usage_errors(group_ctx=None, command: str | None = None):
     """A command line the parser refuses (unknown option or command, missing argument, a value
     of the wrong type) as one line on stderr, exit code 2, instead of typer's boxed panel.
     `bimgraph` alone still prints the help (click raises that as a usage error too). Some
     errors come without their context (an option missing its value): the command is then the
-    subcommand `group_ctx` was invoking."""
+    subcommand `group_ctx` was invoking, or `command` names it."""
     try:
         yield
     except UsageError as err:
         if type(err).__name__ == "NoArgsIsHelpError":  # (by name: click before 8.2 has no such class)
             raise
-        if err.ctx is not None:
+        if command is None and err.ctx is not None:
             command = err.ctx.command_path
-        elif group_ctx is not None and group_ctx.invoked_subcommand:
+        elif command is None and group_ctx is not None and group_ctx.invoked_subcommand:
             command = f"{group_ctx.command_path} {group_ctx.invoked_subcommand}"
-        else:
-            command = "bimgraph"
+        command = command or "bimgraph"
         message = " ".join(err.format_message().split()).rstrip(".")
         text = f"{command}: {message[:1].lower()}{message[1:]} (see {command} --help)"
         raise typer.Exit(_error(text, err.exit_code)) from None
@@ -52,14 +51,17 @@ class Commands(TyperGroup):
     `_one_line_usage_errors`."""
 
     def make_context(self, info_name, args, *rest, **kwargs):
-        with _one_line_usage_errors():
+        # (the subcommand's own arguments, named as its help names them)
+        sub = 1 if args and args[0] in self.commands else 0
+        with _one_line_usage_errors(command=" ".join([info_name, *args[:sub]])):
             # (an unset shell variable: `-o ""` is the current folder to a Path, where a run
             # would replace what an earlier one left)
-            for i, arg in enumerate(args):
+            for i, arg in enumerate(args[sub:], start=sub):
                 option, equals, value = arg.partition("=")
                 if arg == "" or (arg.startswith("--") and equals and not value):
-                    what = option if arg else args[i - 1] if i and args[i - 1].startswith("-") else f"argument {i + 1}"
+                    what = option if arg else args[i - 1] if i > sub and args[i - 1].startswith("-") else f"argument {i - sub + 1}"
                     raise UsageError(f"{what} is empty (an unset shell variable?)")
+        with _one_line_usage_errors():
             return super().make_context(info_name, args, *rest, **kwargs)
 
     def invoke(self, ctx):

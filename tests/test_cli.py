@@ -22,9 +22,9 @@ runner = CliRunner()
     (["config"], "bimgraph config: invalid value: give --default or --check FILE"),
     (["config", "--default", "--check", "c.yaml"], "give --default or --check FILE, not both"),
     # an unset shell variable: `-o ""` was the current folder, where a run wrote its outputs
-    (["run", "seq", "-o", ""], "bimgraph: -o is empty (an unset shell variable?)"),
-    (["simulate", "--output=", "-n", "5"], "bimgraph: --output is empty"),
-    (["run", "", "-o", "out"], "bimgraph: argument 2 is empty"),
+    (["run", "seq", "-o", ""], "bimgraph run: -o is empty (an unset shell variable?) (see bimgraph run --help)"),
+    (["simulate", "--output=", "-n", "5"], "bimgraph simulate: --output is empty"),
+    (["run", "", "-o", "out"], "bimgraph run: argument 1 is empty"),
 ])
 def test_a_refused_command_line_is_one_line_exit_2(tmp_path, args, message):
     result = runner.invoke(app, args, prog_name="bimgraph")

@@ -75,7 +75,7 @@ def test_face_moved_to_another_plane():
         (lambda f: f.update(offset=float("nan")), "faces[0].offset: Input should be a finite number"),
         (lambda f: f.update(holes=[[[1, 5, 1], [2, 5, 1]]]), "faces[0].holes[0]: List should have at least 3 items"),
         # corners in a line: no area, whatever area the file gives it
-        (lambda f: f.update(polygon=[[0, 5, 0], [1, 5, 0], [2, 5, 0]], area=1.0), "faces[0]: polygon has zero area"),
+        (lambda f: f.update(polygon=[[0, 5, 0], [1, 5, 0], [2, 5, 0]], area=1.0), "faces[0]: polygon has zero area: its corners lie on a line"),
         (lambda f: f.update(polygon=[[0, 5, 0], [1, 5, 0], [2, 5, 0]], area=1.0, centre=[1, 5, 0]),
          "faces[0]: polygon has zero area"),
         (lambda f: f.update(id=""), "faces[0].id: String should have at least 1 character"),
@@ -88,6 +88,9 @@ def test_face_moved_to_another_plane():
         # shapes that would load as another area than the file says, then break a run's geometry
         (lambda f: f.update(polygon=[[0, 5, 0], [4, 5, 3], [4, 5, 0], [0, 5, 3]]),
          "faces[0] ('north'): its polygon and holes are not one shape (Self-intersection"),
+        # (given area and centre, its outline's areas cancel: it was "zero area" alone)
+        (lambda f: f.update(polygon=[[0, 5, 0], [4, 5, 3], [4, 5, 0], [0, 5, 3]], area=6.0, centre=[2, 5, 1.5]),
+         "faces[0]: polygon has zero area: its outline crosses itself (a bow tie)"),
         (lambda f: f.update(holes=[[[5, 5, 1], [6, 5, 1], [6, 5, 2], [5, 5, 2]]]),
          "faces[0] ('north'): its polygon and holes are not one shape (Hole lies outside shell"),
         (lambda f: f.update(holes=[[[3, 5, 1], [5, 5, 1], [5, 5, 2], [3, 5, 2]]]), "faces[0] ('north'): .* not one shape"),

@@ -101,7 +101,11 @@ class BimFace(BaseModel):
         else:
             area, centre = outline_area(self.polygon, n), None
         if area <= _MIN_AREA_M2:
-            raise ValueError("polygon has zero area")
+            corners = np.asarray(self.polygon, dtype=float)
+            spread = np.linalg.svd(corners - corners.mean(axis=0), compute_uv=False)
+            # (corners spanning a plane whose outline's areas cancel: a bow tie)
+            why = "its outline crosses itself (a bow tie)" if spread[1] > _ON_PLANE_TOL_M else "its corners lie on a line"
+            raise ValueError(f"polygon has zero area: {why}")
         if self.kind != "wall" and abs(n[2]) < _SLAB_MIN_UP:
             raise ValueError(f"a {self.kind} face must be horizontal, its normal is {self.normal}")
         if self.kind == "wall" and abs(n[2]) > np.sin(WALL_MAX_LEAN_RAD):

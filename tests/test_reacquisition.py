@@ -46,3 +46,27 @@ def test_the_heading_comes_back_once_the_walls_are_seen_again():
     assert heading_deg[299] > 7.0  # the stretch did turn it
     assert heading_deg[350:].max() < 2.0
     assert translation_errors(run.T_B_C, scene.T_B_C)[350:].max() < 0.05
+
+
+def test_the_heading_comes_back_past_what_the_stiffened_walk_allows():
+    """The same stretch under 0.15 deg a step (8 deg at 3.8 sigma of the noise as given, 19 of
+    the walk the online judgement stiffens to `isam2.judge_odometry_scale`): across a stretch
+    without planes the judgement sees the noise as given (`isam2.judge_gap_keyframes`), and the
+    walls seen again turn the heading back (0.4 deg, 3.2 cm; stiffened throughout, it ruled
+    them off plan and the walk stayed 7.7 deg and 64 cm off)."""
+    scene = make_scene(400, rooms=(2, 2), seed=0, drift_rot_deg=0.01, drift_trans_m=0.001)
+    keyframes = without_planes_while_turning(scene, 100, 300, 8.0, 0.15)
+    run = run_online(keyframes, scene.plane_map, BackendConfig(), scene.initial)
+    heading_deg = rotation_errors_deg(run.T_B_C, scene.T_B_C)
+    assert heading_deg[299] > 7.0
+    assert heading_deg[350:].max() < 2.0
+    assert translation_errors(run.T_B_C, scene.T_B_C)[350:].max() < 0.05
+
+
+def test_gap_steps_are_the_steps_in_and_out_of_a_long_stretch_without_planes():
+    from bimgraph.backend.online_judgement import gap_steps
+
+    scene = make_scene(12, rooms=(2, 2), seed=0)
+    pattern = "PEEEPPEEPEEE"  # a stretch of 3, one of 2, one of 3 at the end
+    keyframes = [kf.model_copy(update={"planes": kf.planes if c == "P" else []}) for kf, c in zip(scene.keyframes, pattern)]
+    assert "".join("g" if g else "." for g in gap_steps(keyframes, 3)) == "gggg....ggg"

@@ -207,6 +207,9 @@ def test_sequence_loads(tmp_path):
         (dict(KF, index=1, planes=[dict(KF["planes"][0], cov=[[1, 0, 0], [0, -1, 0], [0, 0, 1]])]), "positive definite"),
         # (a pose given to 1e-15 m made the graph singular, reported at another keyframe)
         (dict(KF, index=1, stamp=0.1, cov=(1e-30 * np.eye(6)).tolist()), r"line 2: cov: .*a sigma of 1e-15, below 1e-09"),
+        # (nanoseconds came out of a run rounded by float64, and `--rrd` ended in a traceback)
+        (dict(KF, index=1, stamp=1700000000123456789), "line 2: stamp: 1.7000000001234568e[+]18 is not in seconds .it looks like nanoseconds"),
+        (dict(KF, index=1, stamp=1700000000123), "line 2: stamp: 1700000000123 is not in seconds .it looks like milliseconds"),
     ],
 )
 def test_bad_keyframe_names_line_and_field(tmp_path, bad, message):

@@ -154,6 +154,7 @@ def test_ate_equals_evo_ape(tmp_path):
     ("1.0 0 0 nan 0 0 0 1", "line 2: tz is not a finite number"),
     ("nan 0 0 0 0 0 0 1", "line 2: stamp is not a finite number"),
     ("1.0 0 0 0 0 0 0 2", "line 2: quaternion has norm 2.0000, must be unit"),
+    ("1700000000123456 0 0 0 0 0 0 1", "line 2: stamp 1700000000123456 is not in seconds .it looks like microseconds"),
 ])
 def test_a_bad_tum_line_names_its_field(tmp_path, line, message):
     from bimgraph.errors import FormatError

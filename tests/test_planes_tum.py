@@ -58,6 +58,10 @@ def test_image_list(tmp_path):
     (tmp_path / "bad.txt").write_text("1.0 a.png\ninf b.png\n")
     with pytest.raises(FormatError, match="line 2: stamp 'inf' is not a finite number"):
         read_image_list(tmp_path / "bad.txt")
+    # nanoseconds went into a keyframe: a ValidationError traceback
+    (tmp_path / "bad.txt").write_text("1.0 a.png\n1700000000000000000 b.png\n")
+    with pytest.raises(FormatError, match="line 2: stamp 1.7e[+]18 is not in seconds .it looks like nanoseconds"):
+        read_image_list(tmp_path / "bad.txt")
 
 
 def test_nearest_association():

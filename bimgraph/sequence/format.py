@@ -18,6 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from bimgraph.errors import FormatError, InputError
 from bimgraph.files import existing_file, parse_json, read_json, write_atomic, write_json
 from bimgraph.geometry import pose_from_tum
+from bimgraph.sequence.tum import not_seconds
 from bimgraph.validation import Pose7, parse_model, require_unit
 
 FORMAT = "bimgraph.sequence"
@@ -165,6 +166,13 @@ class Keyframe(BaseModel):
     @classmethod
     def _cov(cls, cov):
         return _check_square_psd(cov, 6)
+
+    @field_validator("stamp")
+    @classmethod
+    def _seconds(cls, stamp):
+        if (why := not_seconds(stamp)) is not None:
+            raise ValueError(why)
+        return stamp
 
     @property
     def pose(self) -> np.ndarray:

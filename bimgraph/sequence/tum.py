@@ -27,6 +27,20 @@ def write_tum(path: Path, stamps, poses) -> None:
     write_atomic(path, format_tum(stamps, poses))
 
 
+# the year 5138 in Unix seconds: a stamp past it is in smaller units (rerun's own bound)
+_MAX_STAMP_S = 1e11
+
+
+def not_seconds(stamp: float) -> str | None:
+    """Why `stamp` cannot be in seconds, or None. Milli- or nanoseconds would pass through a
+    run rounded by float64 (the outputs' stamps then no longer those of the input), and the
+    viewer's time axis refuses them: rerun takes seconds since the Unix epoch."""
+    if abs(stamp) < _MAX_STAMP_S:
+        return None
+    unit = "nanoseconds" if abs(stamp) >= 1e17 else "microseconds" if abs(stamp) >= 1e14 else "milliseconds"
+    return f"{stamp:.17g} is not in seconds (it looks like {unit}): stamps are seconds, such as 1700000000.123456"
+
+
 def data_lines(path: Path):
     """(line number, fields) of every line of a TUM text file that is neither blank nor a
     `#` comment; fields split at white space (and commas, as some tools write)."""
@@ -49,6 +63,8 @@ def read_tum(path: Path) -> tuple[np.ndarray, np.ndarray]:
         if not np.all(np.isfinite(values)):
             name = ("stamp", "tx", "ty", "tz", "qx", "qy", "qz", "qw")[int(np.flatnonzero(~np.isfinite(values))[0])]
             raise FormatError(f"{path}: line {lineno}: {name} is not a finite number")
+        if (why := not_seconds(values[0])) is not None:
+            raise FormatError(f"{path}: line {lineno}: stamp {why}")
         q_norm = np.linalg.norm(values[4:8])
         if abs(q_norm - 1.0) > 1e-3:
             raise FormatError(f"{path}: line {lineno}: quaternion has norm {q_norm:.4f}, must be unit")

@@ -18,7 +18,7 @@ from bimgraph.errors import FormatError, InputError
 from bimgraph.files import read_json, read_yaml, write_atomic
 from bimgraph.geometry import pose_to_tum
 from bimgraph.sequence.format import Camera, Keyframe, Sequence, SequenceMeta
-from bimgraph.sequence.tum import data_lines, read_tum
+from bimgraph.sequence.tum import data_lines, not_seconds, read_tum
 from bimgraph.validation import parse_model
 
 DEPTH_LIST = "depth.txt"
@@ -71,6 +71,8 @@ def read_image_list(path: Path, in_order: bool = False) -> tuple[np.ndarray, lis
             stamp = math.nan
         if not math.isfinite(stamp):  # (float() takes "nan" and "inf")
             raise FormatError(f"{path}: line {lineno}: stamp {fields[0]!r} is not a finite number")
+        if (why := not_seconds(stamp)) is not None:
+            raise FormatError(f"{path}: line {lineno}: stamp {why}")
         if in_order and stamps and stamp <= stamps[-1]:
             raise FormatError(f"{path}: line {lineno}: stamp {fields[0]} does not follow {stamps[-1]:.6f} (list each image "
                               "once, in time order)")

@@ -129,3 +129,11 @@ def plane_shape(plane: np.ndarray, polygon, holes=()):
     origin, basis = plane_frame(plane)
     return shapely.Polygon((np.asarray(polygon, dtype=float) - origin) @ basis,
                            [(np.asarray(h, dtype=float) - origin) @ basis for h in holes]).buffer(0)
+
+
+def sigmas_in_B(T_B_S: np.ndarray, covariance) -> tuple[np.ndarray, np.ndarray]:
+    """The one-sigma rotation (rad) and position (m) of `T_B_S` along B's axes, from its
+    covariance in gtsam's right tangent (whose axes are S's); NaN where it has no figure."""
+    cov = np.array([[np.nan if v is None else v for v in row] for row in covariance], dtype=float)
+    R = T_B_S[:3, :3]
+    return (np.sqrt(np.diag(R @ cov[:3, :3] @ R.T)), np.sqrt(np.diag(R @ cov[3:, 3:] @ R.T)))

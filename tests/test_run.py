@@ -18,7 +18,7 @@ from bimgraph.config import BackendConfig, Config
 from bimgraph.evaluation.metrics import ate
 from bimgraph.errors import InputError
 from bimgraph.evaluation.runs import load_estimate, run_summary
-from bimgraph.geometry import pose_to_tum
+from bimgraph.geometry import pose_from_tum, pose_to_tum
 from bimgraph.sequence.format import InitialAlignment, Sequence, SequenceMeta, load_sequence, save_sequence
 from bimgraph.sequence.tum import read_tum
 
@@ -65,6 +65,10 @@ def test_run_writes_every_output(world, tmp_path, mode):
     extrinsic = json.loads((tmp_path / "extrinsic.json").read_text())
     assert np.array(extrinsic["covariance"]).shape == (6, 6)
     assert extrinsic["unobservable"] == [{"kind": "translation", "axis_B": [0.0, 0.0, 1.0]}]
+    # the sigmas along B's axes too, as the terminal prints them (the file had only S's)
+    R_B_S = pose_from_tum(extrinsic["T_B_S"])[:3, :3]
+    cov_trans_B = R_B_S @ np.array(extrinsic["covariance"])[3:, 3:] @ R_B_S.T
+    np.testing.assert_allclose(extrinsic["sigma_trans_B_m"], np.sqrt(np.diag(cov_trans_B)))
     associations = json.loads((tmp_path / "associations.json").read_text())["associations"]
     faces = {f.id for f in scene.plane_map.faces}
     assert associations and all(a["face"] in faces and a["keyframes"] for a in associations)
@@ -370,8 +374,7 @@ def test_the_printed_sigmas_are_along_B():
     """extrinsic.json's covariance is in the right tangent of T_B_S, whose axes are S's; the
     printout gives the sigmas along B's axes (a review read S's as B's: 1.5, 0.5 cm against
     1.24, 0.88 along B)."""
-    from bimgraph.evaluation.runs import sigmas_in_B
-    from bimgraph.geometry import make_pose
+    from bimgraph.geometry import make_pose, sigmas_in_B
 
     T_B_S = make_pose(np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]), [5.0, -3.0, 0.0])  # 90 deg yaw
     cov = np.diag([1e-6, 4e-6, 9e-6, 1e-4, 4e-4, 9e-4]).tolist()

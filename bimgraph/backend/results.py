@@ -19,7 +19,7 @@ from bimgraph.backend.landmarks import DIRECTION, KEPT, OUT, Landmark
 from bimgraph.backend.records import KeyframeResult, Results
 from bimgraph.errors import InputError
 from bimgraph.files import ensure_folder, read_json, uninterrupted, write_json
-from bimgraph.geometry import plane_from_frame, pose_to_tum
+from bimgraph.geometry import plane_from_frame, pose_to_tum, sigmas_in_B
 from bimgraph.sequence.format import Vec3
 from bimgraph.sequence.tum import format_tum, write_tum
 from bimgraph.validation import Pose7, parse_model
@@ -68,6 +68,8 @@ class ExtrinsicFile(_File):
     covariance_tangent: str = ""
     sigma_rot_deg: Sigma3
     sigma_trans_m: Sigma3
+    sigma_rot_B_deg: Sigma3 | None = None  # (absent in files written before)
+    sigma_trans_B_m: Sigma3 | None = None
     unobservable: list[Unobservable]
     keyframe: Index | None
 
@@ -170,10 +172,13 @@ def load_associations(path: Path) -> AssociationsFile:
 
 
 def extrinsic_record(T_B_S: np.ndarray, cov: np.ndarray, unobservable: list[dict], keyframe: int | None) -> dict:
+    sigma_rot_B, sigma_trans_B = sigmas_in_B(T_B_S, cov)
     return {"T_B_S": _pose7(T_B_S), "covariance": [[float(v) for v in row] for row in cov],
             "covariance_tangent": "gtsam Pose3: rotation (rad), then translation (m), right perturbation",
             "sigma_rot_deg": [float(np.degrees(np.sqrt(v))) for v in np.diag(cov)[:3]],
             "sigma_trans_m": [float(np.sqrt(v)) for v in np.diag(cov)[3:]],
+            "sigma_rot_B_deg": [float(np.degrees(v)) for v in sigma_rot_B],
+            "sigma_trans_B_m": [float(v) for v in sigma_trans_B],
             "unobservable": unobservable, "keyframe": keyframe}
 
 

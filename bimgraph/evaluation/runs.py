@@ -19,7 +19,7 @@ from bimgraph.errors import FormatError, InputError
 from bimgraph.evaluation.baselines import estimate_extrinsics, matched_planes
 from bimgraph.evaluation.evaluate import Estimate, evaluate
 from bimgraph.files import write_json
-from bimgraph.geometry import pose_from_tum
+from bimgraph.geometry import pose_from_tum, sigmas_in_B
 from bimgraph.sequence.format import KEYFRAMES_FILE, Sequence, load_sequence
 from bimgraph.sequence.groundtruth import GroundTruth, load_groundtruth
 from bimgraph.sequence.tum import read_tum
@@ -180,14 +180,6 @@ def run_summary(out_dir: Path) -> list[tuple[str, str]]:
     elif seconds is not None:
         rows.append(("time", f"{seconds:.1f} s in {summary.rounds or 1} rounds"))
     return rows
-
-
-def sigmas_in_B(T_B_S: np.ndarray, covariance) -> tuple[np.ndarray, np.ndarray]:
-    """The one-sigma rotation (rad) and position (m) of `T_B_S` along B's axes, from its
-    covariance in gtsam's right tangent (whose axes are S's); NaN where it has no figure."""
-    cov = np.array([[np.nan if v is None else v for v in row] for row in covariance], dtype=float)
-    R = T_B_S[:3, :3]
-    return (np.sqrt(np.diag(R @ cov[:3, :3] @ R.T)), np.sqrt(np.diag(R @ cov[3:, 3:] @ R.T)))
 
 
 def _distance_rows(title: str, label: str, records, describe) -> list[tuple[str, str]]:

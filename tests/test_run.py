@@ -370,6 +370,17 @@ def test_a_sequence_without_plane_detections_is_one_line(world, tmp_path, depth)
     assert not out.exists()
 
 
+def test_an_online_run_too_short_for_a_drift_fit_reports_none(world, tmp_path):
+    """The drift is fitted every `isam2.drift_every` keyframes: a run that ended before the
+    first fit reported a correction of +0.000 deg/m, as if measured (outside review)."""
+    _, root = world
+    (tmp_path / "c.yaml").write_text(f"backend:\n  isam2:\n    drift_every: {N + 1}\n")
+    result = run(root, "-o", tmp_path / "out", "--config", tmp_path / "c.yaml")
+    assert result.exit_code == 0, result.output
+    assert "frontend_drift" not in json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert "front-end drift" not in result.output
+
+
 def test_the_printed_sigmas_are_along_B():
     """extrinsic.json's covariance is in the right tangent of T_B_S, whose axes are S's; the
     printout gives the sigmas along B's axes (a review read S's as B's: 1.5, 0.5 cm against

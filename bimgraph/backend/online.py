@@ -145,6 +145,11 @@ class Backend:
         return observations, observed, values
 
     @property
+    def drift_fitted(self) -> bool:
+        """Whether the front-end's drift has been fitted yet (`isam2.drift_every`)."""
+        return bool(self.drift_every) and self._count >= self.drift_every
+
+    @property
     def bim_tolerance(self) -> tuple[float, float] | None:
         """The plane-to-BIM tolerance (normal rad, offset m) as the online judgement left it;
         None where it never judges (`isam2.judge_every` 0)."""

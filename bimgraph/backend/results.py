@@ -314,7 +314,7 @@ class OnlineWriter:
         write_json(self.out / LANDMARKS, landmarks_record(landmarks, self.last.T_B_S))
         self._summary = summary_record("online", timings or {}, self.latencies, len(self.latencies), landmarks, finished,
                                        inputs=self.inputs, bim_tolerance=backend.bim_tolerance,
-                                       frontend_drift=backend.odometry.summary() if backend.drift_every else None,
+                                       frontend_drift=backend.odometry.summary() if backend.drift_fitted else None,
                                        depth_tilt_sigma_per_m=backend.tilt.sigma_per_m if backend.tilt is not None else None)
         write_json(self.out / SUMMARY, self._summary)
 

@@ -518,3 +518,23 @@ def test_an_unfinished_runs_report_is_not_read(world, tmp_path):
     (out / "landmarks.json.tmp").write_text("{")  # (a kill while it wrote one)
     assert run(root, "-o", out, "--mode", "offline").exit_code == 0
     assert not (out / "landmarks.json.tmp").exists()
+
+
+def test_the_python_api_gives_the_deviation_report_a_run_writes(world, tmp_path):
+    """`deviation_report` on offline `Results` is deviations.json's content (the README said
+    the API returned what the files hold; the report was only made inside `bimgraph run`)."""
+    from bimgraph.backend import run_offline
+    from bimgraph.backend.pipeline import initial_alignment
+    from bimgraph.config import Config
+    from bimgraph.deviations.outputs import deviation_report
+    from bimgraph.deviations.report import load_deviations, to_file
+    from bimgraph.sequence.format import load_sequence
+
+    scene, root = world
+    assert run(root, "-o", tmp_path, "--mode", "offline").exit_code == 0
+    cfg, seq = Config(), load_sequence(root)
+    results = run_offline(seq.keyframes, scene.plane_map, cfg.backend, initial_alignment(seq.meta, cfg))
+    report = deviation_report(scene.plane_map, results.observed_planes, results.T_B_S, results.T_B_C, seq.meta.camera,
+                              cfg.deviations, results.rival_alignment)
+    written = load_deviations(tmp_path / "deviations.json")
+    assert written.faces and to_file(report).model_dump() == written.model_dump()

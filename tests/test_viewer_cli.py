@@ -91,6 +91,10 @@ def test_run_rrd_holds_the_whole_run(online_run, seq_dir):
     # the viewer follows the real run: its error series say the correction worked
     corrected, raw = scalars(path, f"/{bp.METRICS}/position_error_cm/corrected"), scalars(path, f"/{bp.METRICS}/position_error_cm/raw")
     assert corrected[-1] < raw[-1]
+    # the extrinsic's sigmas along B's axes, as extrinsic.json's sigma_trans_B_m (they were along S's)
+    sigma_cm = scalars(path, f"/{bp.METRICS}/extrinsic_cm/sigma")[-1]
+    np.testing.assert_allclose(sigma_cm, 100 * np.array(json.loads((online_run / "extrinsic.json").read_text())["sigma_trans_B_m"]),
+                               rtol=1e-5)
 
 
 def test_view_replays_the_outputs(online_run, seq_dir):

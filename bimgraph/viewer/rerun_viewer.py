@@ -27,6 +27,7 @@ import numpy as np
 
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import ViewerConfig
+from bimgraph.geometry import sigmas_in_B
 from bimgraph.sequence.format import Camera, PlaneObservation
 from bimgraph.viewer import blueprint as bp
 from bimgraph.viewer.drawing import angles_deg, closed_rings, plane_centre_C, project, segments
@@ -291,12 +292,12 @@ class RerunViewer:
                       100.0 * np.linalg.norm(T_B_S[:, :3, 3] - self.T_B_S_initial[:3, 3], axis=1))
         with_cov = [i for i, r in enumerate(records) if r.cov_T_B_S is not None]
         if with_cov:
-            cov = np.stack([np.asarray(records[i].cov_T_B_S, dtype=float) for i in with_cov])
-            # one-sigma per axis of S (gtsam's right perturbation): an unobservable
-            # direction shows as a sigma that stays at its prior
-            sigma = np.sqrt(np.diagonal(cov, axis1=1, axis2=2))
-            self._scalars("extrinsic_deg/sigma", index[with_cov], stamp[with_cov], np.degrees(sigma[:, :3]))
-            self._scalars("extrinsic_cm/sigma", index[with_cov], stamp[with_cov], 100.0 * sigma[:, 3:])
+            # one-sigma per axis of B, as `bimgraph run` prints it (the covariance's own axes,
+            # gtsam's right perturbation, are S's): an unobservable direction shows as a sigma
+            # that stays at its prior
+            sigma_rot, sigma_trans = np.array([sigmas_in_B(T_B_S[i], records[i].cov_T_B_S) for i in with_cov]).transpose(1, 0, 2)
+            self._scalars("extrinsic_deg/sigma", index[with_cov], stamp[with_cov], np.degrees(sigma_rot))
+            self._scalars("extrinsic_cm/sigma", index[with_cov], stamp[with_cov], 100.0 * sigma_trans)
 
         # The definitions of bimgraph.evaluation.metrics (translation error; extrinsic error
         # at the origin of S), vectorised: its per-pose scipy rotation costs ~200 us each.

@@ -109,6 +109,18 @@ def test_malformed_ground_truth_is_one_line_exit_3(finished_run, tmp_path):
     assert_one_line_error(result, 3, "observations.jsonl: line 2: planes: Input should be a valid list")
 
 
+def test_ground_truth_with_only_a_trajectory_names_every_missing_file(finished_run, tmp_path):
+    """A user with a reference trajectory alone learned the files eval needs one at a time."""
+    seq, out = finished_run
+    copy = tmp_path / "seq"
+    shutil.copytree(seq, copy)
+    for name in ("T_B_S.json", "observations.jsonl", "as_built.json", "visible.jsonl"):
+        (copy / "groundtruth" / name).unlink()
+    result = CliRunner().invoke(app, ["eval", str(out), "--gt", str(copy), "--no-baselines"])
+    assert_one_line_error(result, 2, "groundtruth: no T_B_S.json, observations.jsonl, as_built.json, visible.jsonl (")
+    assert "evo_ape tum REF.tum OUT/trajectory_bim.tum" in result.output
+
+
 def test_a_run_stopped_early_is_measured_over_the_keyframes_it_reached(finished_run, tmp_path):
     """An interrupted online run's outputs are valid up to its last keyframe (README): eval
     refused them ("25 poses for 30 keyframes"). One with more poses than the sequence has

@@ -32,6 +32,7 @@ EXTRINSIC_FILE = "T_B_S.json"
 OBSERVATIONS_FILE = "observations.jsonl"
 AS_BUILT_FILE = "as_built.json"
 VISIBLE_FILE = "visible.jsonl"
+_FILES = (TRAJECTORY_FILE, EXTRINSIC_FILE, OBSERVATIONS_FILE, AS_BUILT_FILE, VISIBLE_FILE)
 LABELS_FOLDER = "labels"
 
 
@@ -127,6 +128,10 @@ def load_groundtruth(root: Path) -> GroundTruth:
     folder = Path(root) / FOLDER
     if not folder.is_dir():
         raise InputError(f"{root}: no {FOLDER}/ folder (not a simulated sequence)")
+    if missing := [name for name in _FILES if not (folder / name).is_file()]:
+        # (named one at a time, a user with a reference trajectory learned the list by trial)
+        raise InputError(f"{folder}: no {', '.join(missing)} (the simulator writes all of {', '.join(_FILES)}; for a "
+                         f"reference trajectory alone, evo reads ours: evo_ape tum REF.tum OUT/trajectory_bim.tum)")
     stamps, T_B_C = read_tum(folder / TRAJECTORY_FILE)
     extrinsic = read_json(folder / EXTRINSIC_FILE)
     T_B_S = pose_from_tum(parse_model(_Extrinsic, extrinsic, str(folder / EXTRINSIC_FILE)).T_B_S)

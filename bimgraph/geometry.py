@@ -133,7 +133,10 @@ def plane_shape(plane: np.ndarray, polygon, holes=()):
 
 def sigmas_in_B(T_B_S: np.ndarray, covariance) -> tuple[np.ndarray, np.ndarray]:
     """The one-sigma rotation (rad) and position (m) of `T_B_S` along B's axes, from its
-    covariance in gtsam's right tangent (whose axes are S's); NaN where it has no figure."""
-    cov = np.array([[np.nan if v is None else v for v in row] for row in covariance], dtype=float)
-    R = T_B_S[:3, :3]
-    return (np.sqrt(np.diag(R @ cov[:3, :3] @ R.T)), np.sqrt(np.diag(R @ cov[3:, 3:] @ R.T)))
+    covariance in gtsam's right tangent (whose axes are S's); NaN where it has no figure (None).
+    Of one pose (4x4, 6x6: two 3-vectors) or of a stack of them (n x 4 x 4, n x 6 x 6)."""
+    cov = np.asarray(covariance, dtype=float)  # (None becomes NaN)
+    R = np.asarray(T_B_S)[..., :3, :3]
+    Rt = np.swapaxes(R, -1, -2)
+    return tuple(np.sqrt(np.diagonal(R @ cov[..., block, block] @ Rt, axis1=-2, axis2=-1))
+                 for block in (slice(0, 3), slice(3, 6)))

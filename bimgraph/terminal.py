@@ -36,11 +36,13 @@ def _one_line_usage_errors(group_ctx=None, command: str | None = None):
     except UsageError as err:
         if type(err).__name__ == "NoArgsIsHelpError":  # (by name: click before 8.2 has no such class)
             raise
-        if command is None and err.ctx is not None:
-            command = err.ctx.command_path
-        elif command is None and group_ctx is not None and group_ctx.invoked_subcommand:
-            command = f"{group_ctx.command_path} {group_ctx.invoked_subcommand}"
-        command = command or "bimgraph"
+        if command is None:
+            if err.ctx is not None:
+                command = err.ctx.command_path
+            elif group_ctx is not None and group_ctx.invoked_subcommand:
+                command = f"{group_ctx.command_path} {group_ctx.invoked_subcommand}"
+            else:
+                command = "bimgraph"
         message = " ".join(err.format_message().split()).rstrip(".")
         text = f"{command}: {message[:1].lower()}{message[1:]} (see {command} --help)"
         raise typer.Exit(_error(text, err.exit_code)) from None

@@ -295,7 +295,7 @@ class RerunViewer:
             # one-sigma per axis of B, as `bimgraph run` prints it (the covariance's own axes,
             # gtsam's right perturbation, are S's): an unobservable direction shows as a sigma
             # that stays at its prior
-            sigma_rot, sigma_trans = np.array([sigmas_in_B(T_B_S[i], records[i].cov_T_B_S) for i in with_cov]).transpose(1, 0, 2)
+            sigma_rot, sigma_trans = sigmas_in_B(T_B_S[with_cov], [records[i].cov_T_B_S for i in with_cov])
             self._scalars("extrinsic_deg/sigma", index[with_cov], stamp[with_cov], np.degrees(sigma_rot))
             self._scalars("extrinsic_cm/sigma", index[with_cov], stamp[with_cov], 100.0 * sigma_trans)
 

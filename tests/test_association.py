@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from bimgraph.backend import BimAssociator, FaceIndex
-from bimgraph.backend.associate_slam import Observation, mahalanobis_to_landmarks
+from bimgraph.backend.associate_slam import Observation, Stacked, mahalanobis_to_landmarks
 from bimgraph.backend.landmarks import Landmark, LandmarkTable
 from bimgraph.config import BackendConfig
 from bimgraph.geometry import exp_se3, inverse, normalise_plane, plane_from_frame, plane_to_frame
@@ -32,7 +32,7 @@ def test_slam_gate_is_the_plane_factor_residual():
     observations = [Observation(i, normalise_plane(plane_from_frame(table[i].plane_S, inverse(T_S_C)) + rng.normal(size=4) * 0.02),
                                 np.diag(rng.uniform(1e-4, 3e-4, 3)), np.zeros((0, 3))) for i in range(2)]
     pairs = (np.repeat([0, 1], 4), np.tile(np.arange(4), 2))
-    d2 = mahalanobis_to_landmarks(observations, T_S_C, table, pairs)
+    d2 = mahalanobis_to_landmarks(Stacked.of(observations), T_S_C, table, pairs)
     for i, j, d2_ij in zip(*pairs, d2):
         lm, obs = table[j], observations[i]
         e, (_, _, H_L) = local_plane_error(gtsam.Pose3(T_S_C), gtsam.Pose3(lm.T_S_A), gtsam.OrientedPlane3(lm.plane_A),

@@ -41,29 +41,48 @@ class Observation:
         self.centre_C, self.radius = bounding_sphere(self.points_C) if len(self.points_C) else (None, np.nan)
 
 
-def mahalanobis_to_landmarks(observations: list[Observation], T_S_C: np.ndarray, landmarks: LandmarkTable,
+@dataclass(frozen=True)
+class Stacked:
+    """A keyframe's observations as arrays, built once for all the association's steps (on a
+    keyframe's handful of planes numpy's calls cost more than the maths: one per keyframe,
+    not one per observation and step). Observations without points have NaN centre and
+    radius, which every gap test passes."""
+
+    planes_C: np.ndarray  # n x 4
+    covs: np.ndarray  # n x 3 x 3
+    centres_C: np.ndarray  # n x 3
+    radii: np.ndarray  # n
+
+    @classmethod
+    def of(cls, observations: list[Observation]) -> Stacked:
+        no_centre = np.full(3, np.nan)
+        return cls(np.array([obs.plane_C for obs in observations]), np.array([obs.cov for obs in observations]),
+                   np.array([no_centre if obs.centre_C is None else obs.centre_C for obs in observations]),
+                   np.array([obs.radius for obs in observations]))
+
+
+def mahalanobis_to_landmarks(stacked: Stacked, T_S_C: np.ndarray, landmarks: LandmarkTable,
                              pairs: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """Squared Mahalanobis distance of each pair (observation index, landmark) in `pairs`:
     the residual of the plane factor that would join them (`factors.local_plane_error` with
     the camera as pose), with the landmark's marginal propagated through its Jacobian plus the
-    observation's covariance. Vectorised over the pairs (numpy's calls cost more than the
-    maths: one call for a keyframe's pairs, not one per observation)."""
+    observation's covariance. Vectorised over the pairs."""
     i, js = pairs
     # A plane is a covector: seen from C, landmark j's plane (n, d) in A is T_A_C^T @ (n, d).
     # With P taking it to the residual (n in the measurement's Unit3 basis; minus d), one
     # product per pair gives both the residual and, through the plane's own basis, its Jacobian.
     A_to_C = (landmarks.T_A_S[js] @ T_S_C).transpose(0, 2, 1)
-    P = np.zeros((len(observations), 3, 4))
-    for row, obs in enumerate(observations):
-        P[row, :2, :3] = gtsam.Unit3(obs.plane_C[:3]).basis().T
+    P = np.zeros((len(stacked.planes_C), 3, 4))
+    for row, plane_C in enumerate(stacked.planes_C):
+        P[row, :2, :3] = gtsam.Unit3(plane_C[:3]).basis().T
     P[:, 2, 3] = -1.0
     PM = P[i] @ A_to_C
     e = (PM @ landmarks.planes_A[js, :, None])[:, :, 0]
-    e[:, 2] += np.array([obs.plane_C[3] for obs in observations])[i]
+    e[:, 2] += stacked.planes_C[i, 3]
     # H = d e / d plane_A (the normal moving along its basis B_A, then d):
     # [[B_z^T R^T B_A, 0], [-t^T B_A, -1]]
     H = np.concatenate([PM[:, :, :3] @ landmarks.bases_A[js], PM[:, :, 3:]], axis=2)
-    S = H @ landmarks.covs_A[js] @ H.transpose(0, 2, 1) + np.stack([obs.cov for obs in observations])[i]
+    S = H @ landmarks.covs_A[js] @ H.transpose(0, 2, 1) + stacked.covs[i]
     # e^T S^-1 e through S's Cholesky factor, spelled out for 3x3 (np.linalg.solve's stacked
     # call costs several times these few operations on a keyframe's handful of pairs)
     l11 = np.sqrt(S[:, 0, 0])
@@ -107,23 +126,18 @@ class SlamAssociator:
         self.gate = chi2.ppf(cfg.gate_probability, 3)
         self.cos_max = np.cos(np.radians(cfg.max_normal_angle_deg))
 
-    def candidates(self, observations: list[Observation], T_S_C: np.ndarray, landmarks: LandmarkTable) -> np.ndarray:
+    def candidates(self, stacked: Stacked, T_S_C: np.ndarray, landmarks: LandmarkTable) -> np.ndarray:
         """(observation, landmark) pairs close enough in normal, offset and extent to be worth
         scoring, as a boolean matrix."""
-        planes_in_C = _planes_to_frame(landmarks.planes_S, T_S_C)
-        planes_C = np.stack([obs.plane_C for obs in observations])
+        planes_in_C = landmarks.planes_S @ T_S_C  # (a plane is a covector: (n, d)_C = T_S_C^T (n, d)_S)
+        planes_C = stacked.planes_C
         ok = (planes_C[:, :3] @ planes_in_C[:, :3].T > self.cos_max) & (
-            np.abs(planes_in_C[None, :, 3] - planes_C[:, 3:]) < self.cfg.max_offset_m) & landmarks.active
-        with_points = [row for row, obs in enumerate(observations) if obs.centre_C is not None]
-        if with_points:
-            centres_S = transform_points(T_S_C, np.stack([observations[row].centre_C for row in with_points]))
-            radii = np.array([observations[row].radius for row in with_points])
-            # bounding spheres: a lower bound of the exact extent gap (the distance spelled out:
-            # np.linalg.norm's checks cost as much as the sum)
-            offsets = landmarks.centres_S[None] - centres_S[:, None]
-            gap = np.sqrt((offsets * offsets).sum(axis=2)) - landmarks.radii - radii[:, None]
-            ok[with_points] &= ~(gap > self.cfg.max_extent_gap_m)
-        return ok
+            np.abs(planes_in_C[:, 3] - planes_C[:, 3:]) < self.cfg.max_offset_m) & landmarks.active
+        # bounding spheres: a lower bound of the exact extent gap (the distance spelled out:
+        # np.linalg.norm's checks cost as much as the sum)
+        offsets = landmarks.centres_S - transform_points(T_S_C, stacked.centres_C)[:, None]
+        gap = np.sqrt((offsets * offsets).sum(axis=2)) - landmarks.radii - stacked.radii[:, None]
+        return ok & ~(gap > self.cfg.max_extent_gap_m)
 
     def associate(self, observations: list[Observation], T_S_C: np.ndarray, landmarks: LandmarkTable):
         """Landmark id (or None for a new landmark) and Mahalanobis distance for each
@@ -132,29 +146,20 @@ class SlamAssociator:
         out: list[tuple[int | None, float]] = [(None, float("nan"))] * n_obs
         if n_obs == 0 or len(landmarks) == 0:
             return out
-        pairs = np.nonzero(self.candidates(observations, T_S_C, landmarks))
-        if len(pairs[0]) == 0:
-            return out
-        d2 = mahalanobis_to_landmarks(observations, T_S_C, landmarks, pairs)
+        stacked = Stacked.of(observations)
+        i, js = np.nonzero(self.candidates(stacked, T_S_C, landmarks))
+        d2 = mahalanobis_to_landmarks(stacked, T_S_C, landmarks, (i, js))
         gated = d2 <= self.gate
-        scores: dict[tuple[int, int], float] = {}
-        for i, j, score in zip(pairs[0][gated], pairs[1][gated], d2[gated]):
-            if extent_gap(observations[i], landmarks.T_A_S[j] @ T_S_C, landmarks[j], landmarks.bases_A[j]) <= self.cfg.max_extent_gap_m:
-                scores[(int(i), int(j))] = float(score)
+        i, js, d2 = i[gated], js[gated], d2[gated]
+        scores = {(i, j): score for i, j, score in zip(i.tolist(), js.tolist(), d2.tolist())
+                  if extent_gap(observations[i], landmarks.T_A_S[j] @ T_S_C, landmarks[j], landmarks.bases_A[j]) <= self.cfg.max_extent_gap_m}
         if not scores:
             return out
         cols = sorted({j for _, j in scores})
         cost = np.full((n_obs, len(cols)), _INFEASIBLE)
         for (i, j), score in scores.items():
             cost[i, cols.index(j)] = score
-        for i, c in zip(*linear_sum_assignment(cost)):
-            if cost[i, c] < _INFEASIBLE:
-                out[i] = (cols[c], float(cost[i, c]))
+        for row, col in zip(*linear_sum_assignment(cost)):
+            if cost[row, col] < _INFEASIBLE:
+                out[row] = (cols[col], float(cost[row, col]))
         return out
-
-
-def _planes_to_frame(planes_S: np.ndarray, T_S_C: np.ndarray) -> np.ndarray:
-    """Many planes given in S expressed in C (vectorised `plane_to_frame(plane, T_S_C)`)."""
-    R, t = T_S_C[:3, :3], T_S_C[:3, 3]
-    n = planes_S[:, :3]
-    return np.hstack([n @ R, (planes_S[:, 3] + n @ t)[:, None]])

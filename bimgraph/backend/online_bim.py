@@ -16,7 +16,6 @@ from bimgraph.backend.landmarks import KEPT, Landmark, LandmarkTable
 from bimgraph.backend.matches import behind, face_misfit, offset_sigma, one_plane_d2, revision_reason, unmatch
 from bimgraph.backend.records import Listener
 from bimgraph.config import BackendConfig
-from bimgraph.geometry import plane_to_frame
 
 
 class OnlineBimAssociation:
@@ -79,24 +78,31 @@ class OnlineBimAssociation:
         about 6 deg from plan, however sure its landmark: such a wall stays matched, and the
         robust alignment's judgement, not this limit, decides whether it counts. Whether a
         match changed."""
-        changed = False
-        pose_S_B = gtsam.Pose3(T_S_B)
+        matched = [j for j in sorted(set(landmarks))
+                   if self.landmarks[j].face is not None and self.landmarks[j].merged_into is None]
+        if not matched:
+            return False
+
+        # (the pose and the covariance asked for only where a misfit is past its limit)
+        @functools.cache
+        def pose_S_B() -> gtsam.Pose3:
+            return gtsam.Pose3(T_S_B)
 
         @functools.cache
-        def extrinsic_cov() -> np.ndarray:  # (asked for only where an offset is past the limit)
-            return self.extrinsic_covariance(pose_S_B)
+        def extrinsic_cov() -> np.ndarray:
+            return self.extrinsic_covariance(pose_S_B())
 
         def sigma(j: int, face: str) -> float:
             return offset_sigma(self.landmarks.planes_S[j], T_S_B, self.faces.centres[self.faces.row[face]], extrinsic_cov())
 
-        for j in sorted(set(landmarks)):
+        changed = False
+        # (the planes in B at once: a plane is a covector, (n, d)_B = T_S_B^T (n, d)_S; their
+        # estimates were just refreshed)
+        for j, plane_B in zip(matched, self.landmarks.planes_S[matched] @ T_S_B):
             lm = self.landmarks[j]
-            if lm.face is None or lm.merged_into is not None:
-                continue
-            plane_B = plane_to_frame(self.landmarks.planes_S[j], T_S_B)  # (its estimate was just refreshed)
             reason = revision_reason(plane_B, self.faces, lm.face, self.cfg.bim_association,
                                      lambda: sigma(lm.id, lm.face),
-                                     lambda: self._gate_takes(lm, lm.face, pose_S_B))
+                                     lambda: self._gate_takes(lm, lm.face, pose_S_B()))
             if reason is not None:
                 self.unmatch(lm, reason)
                 changed = True

@@ -271,12 +271,14 @@ def test_slab_without_faces_is_warned_about_and_skipped(tmp_path):
     assert guids["sloped"] in messages[1] and "(sloped)" in messages[1] and "no horizontal face" in messages[1]
 
 
-@pytest.mark.parametrize("variant", ["mapped", "main_context", "no_identifier", "niche"])
+@pytest.mark.parametrize("variant", ["mapped", "main_context", "no_identifier", "niche", "halves"])
 def test_other_ways_to_write_walls(tmp_path, variant):
     """Walls as authoring tools also write them come out as the plain ones: a body and an axis
     only as IfcMappedItems, a body in the main model context, a body without identifier. An
     opening that does not cut through (a niche 20 cm deep into the 30 cm wall W0 from inside)
-    is a hole in the face it opens only."""
+    is a hole in the face it opens only, and its back a face of its own: 20 cm behind, 1 m2,
+    facing the same room. A window's opening in two halves, one from each side, meeting at
+    its frame inside the wall, is a hole in both faces and has no back."""
     import ifcopenshell.util.placement
 
     from bimgraph.geometry import make_pose
@@ -301,26 +303,39 @@ def test_other_ways_to_write_walls(tmp_path, variant):
             body.RepresentationIdentifier = None
         else:
             T_W_wall = ifcopenshell.util.placement.get_local_placement(wall.ObjectPlacement)
-            add_opening(model, wall, T_W_wall @ make_pose(np.eye(3), [2.0, 0.0, 1.0]), body.ContextOfItems,
-                        length=1.0, height=1.0, thickness=0.21, offset=T / 2 - 0.2)
+            T_W_opening = T_W_wall @ make_pose(np.eye(3), [2.0, 0.0, 1.0])
+            if variant == "niche":
+                add_opening(model, wall, T_W_opening, body.ContextOfItems, length=1.0, height=1.0, thickness=0.21, offset=T / 2 - 0.2)
+            else:
+                for offset in (-T / 2 - 0.01, 0.0):
+                    add_opening(model, wall, T_W_opening, body.ContextOfItems, length=1.0, height=1.0, thickness=T / 2 + 0.01, offset=offset)
 
     write_ifc(house(), tmp_path / "reference.ifc")
     reference, _ = import_ifc(tmp_path / "reference.ifc", BimImportConfig())
     edited_house(tmp_path / "variant.ifc", edit)
     messages = []
     plane_map, _ = import_ifc(tmp_path / "variant.ifc", BimImportConfig(), log=messages.append)
-    assert messages == [] and len(plane_map.faces) == len(reference.faces)
+    assert messages == [] and len(plane_map.faces) == len(reference.faces) + (variant == "niche")
 
     def key(face):  # GlobalIds are new in each file written
         return face.wall_name, face.id.split("/")[1]
 
     expected = {key(f): f for f in reference.faces}
+    if variant == "niche":
+        (back,) = [f for f in plane_map.faces if key(f) not in expected]
+        inner = next(f for f in plane_map.faces if f.wall_name == "W0" and f.normal[0] > 0.5 and key(f) in expected)
+        assert back.wall_name == "W0" and np.allclose(back.normal, inner.normal, atol=1e-9)
+        assert back.offset - inner.offset == pytest.approx(0.2, abs=1e-9) and back.area == pytest.approx(1.0, abs=1e-6)
+        assert back.space == inner.space and not back.holes
     for face in plane_map.faces:
+        if variant == "niche" and key(face) not in expected:
+            continue
         plan = expected[key(face)]
         assert np.allclose(face.plane, plan.plane, atol=1e-9)
-        niche = variant == "niche" and face.wall_name == "W0" and face.normal[0] > 0.5  # W0's inner face, x = 0.15
-        assert face.area == pytest.approx(plan.area - (1.0 if niche else 0.0), abs=1e-6)
-        assert len(face.holes) == len(plan.holes) + niche
+        # (the niche opens into W0's inner face, x = 0.15; the halves into both)
+        opened = face.wall_name == "W0" and (variant == "halves" or variant == "niche" and face.normal[0] > 0.5)
+        assert face.area == pytest.approx(plan.area - (1.0 if opened else 0.0), abs=1e-6)
+        assert len(face.holes) == len(plan.holes) + opened
 
 
 def one_wall_model(path, profile, axis, schema="IFC4", length_unit="m"):

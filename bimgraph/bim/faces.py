@@ -318,6 +318,23 @@ def plane_section(V, T, face: Face, depth: float) -> object:
     return shapely.build_area(shapely.multilinestrings(shapely.linestrings(points)))
 
 
+def recess_back(opening, face: Face, depth: float, wall, openings, slice_m: float, grid: float) -> Face | None:
+    """The back of a recess: an `opening` (a mesh with V and T) that enters the `wall`
+    through `face` (`depth` of wall behind it) and ends inside it. Its deepest point sets the
+    back's plane, parallel to the face; its region is where the opening, just in front of
+    that plane, has wall just behind it, and none of the wall's `openings` (a window set into
+    the wall, its openings from either side meeting at the frame, has no back). None for an
+    opening that reaches the wall's other side or stays in front of the face."""
+    reach = -float((np.asarray(opening.V, dtype=float) @ face.normal + face.offset).min())  # (its deepest point)
+    if not slice_m < reach < depth - slice_m:
+        return None
+    back = Face(face.normal, face.offset + reach, Polygon())
+    region = plane_section(opening.V, opening.T, back, -slice_m).intersection(plane_section(wall.V, wall.T, back, slice_m))
+    through = [h for h in (plane_section(o.V, o.T, back, slice_m) for o in openings) if not h.is_empty]
+    back.region = region.difference(shapely.union_all(through, grid_size=grid), grid_size=grid) if through else region
+    return back
+
+
 def boxes_apart(a, b, margin: float = 0.0) -> bool:
     """Whether the bounding boxes of two regions are at least `margin` apart (touching, with
     none): then the regions share no area, which a region operation takes far longer to find."""

@@ -12,6 +12,7 @@ from __future__ import annotations
 import time
 from collections import Counter
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import shapely
@@ -144,10 +145,21 @@ def _skip(log, kind: str, elements, reason: str, reasons: dict[int, str] | None 
     return len(elements)
 
 
-def _wall_faces(reader: ModelReader, walls, meshes, voids, solids, cfg, log, progress) -> list[tuple[object, F.Face, float]]:
-    """[(wall, face, depth behind the face)] for every side face, openings cut out (`voids`:
-    wall id -> its openings, `solids`: their meshes by id). A wall whose geometry cannot be
-    read goes into `reader.unreadable`, with why."""
+class WallFace(NamedTuple):
+    """A face of a wall (in its own frame, `faces.Face`), the depth of the wall behind it and,
+    for the back of a recess, how far the recess sets it back from the wall's side (its room
+    is that much further in front)."""
+
+    wall: object
+    face: F.Face
+    depth: float
+    recess: float = 0.0
+
+
+def _wall_faces(reader: ModelReader, walls, meshes, voids, solids, cfg, log, progress) -> list[WallFace]:
+    """Every side face, and every recess's back, openings cut out (`voids`: wall id -> its
+    openings, `solids`: their meshes by id). A wall whose geometry cannot be read goes into
+    `reader.unreadable`, with why."""
     angle_tol, axis_tol = np.radians(cfg.coplanar_angle_deg), np.radians(cfg.axis_tol_deg)
     per_wall = {}
     for done, wall in enumerate(walls, start=1):
@@ -164,14 +176,22 @@ def _wall_faces(reader: ModelReader, walls, meshes, voids, solids, cfg, log, pro
     out = []
     for done, (wall, sides) in enumerate(per_wall.values(), start=1):
         openings = [m for o in voids[wall.id()] for m in solids.get(o.id(), [])]
+        recesses = []
         for face, depth in sides:
             holes = [F.plane_section(o.V, o.T, face, cfg.opening_slice_depth_m) for o in openings]
+            # an opening that ends inside the wall (a niche, a recess for a cabinet) has a back
+            # a scanner sees as a plane of its own (after the wall's sides, whose ids stay)
+            recesses += [WallFace(wall, back, depth - (back.offset - face.offset), back.offset - face.offset)
+                         for o, hole in zip(openings, holes) if not hole.is_empty
+                         and (back := F.recess_back(o, face, depth, meshes[wall.id()], openings, cfg.opening_slice_depth_m,
+                                                    cfg.grid_m)) is not None]
             holes += [F.plane_section(m.V, m.T, face, -cfg.lining_gap_m) for m in linings.over(face, wall)]
             holes = [h for h in holes if not h.is_empty]
             if holes:
                 face.region = face.region.difference(shapely.union_all(holes, grid_size=cfg.grid_m), grid_size=cfg.grid_m)
             if face.region.area >= cfg.min_face_area_m2:
-                out.append((wall, face, depth))
+                out.append(WallFace(wall, face, depth))
+        out += [back for back in recesses if back.face.region.area >= cfg.min_face_area_m2]
         progress("openings cut out", done, len(per_wall))
     return out
 
@@ -236,16 +256,16 @@ def _split_per_room(reader: ModelReader, wall_faces, meshes, spaces, solids, fac
     guids = {s.id(): s.GlobalId for s in spaces}
     rooms = Rooms({guids[i]: meshes for i, meshes in solids.items() if i in guids})
     boundaries = {}
-    for b in reader.boundaries([wall for wall, _, _ in wall_faces]):
+    for b in reader.boundaries([f.wall for f in wall_faces]):
         boundaries.setdefault(b.wall_id, []).append(b)
 
     # (rooms without a solid or a boundary on these walls say nothing: the junctions split then)
-    junctions = None if rooms.items or boundaries else Junctions({wall.id(): meshes[wall.id()] for wall, _, _ in wall_faces})
+    junctions = None if rooms.items or boundaries else Junctions({f.wall.id(): meshes[f.wall.id()] for f in wall_faces})
     angle_tol = np.radians(cfg.vertical_tol_deg)
     sections = []
-    for done, (wall, face, depth) in enumerate(wall_faces, start=1):
+    for done, (wall, face, depth, recess) in enumerate(wall_faces, start=1):
         if junctions is None:
-            in_front = rooms.claims(face, cfg.probe_distance_m)
+            in_front = rooms.claims(face, cfg.probe_distance_m + recess)
             claims = boundary_claims(face, depth, boundaries.get(wall.id(), []), cfg.boundary_on_face_m,
                                      angle_tol, {c.space_guid: c.region for c in in_front})
             pieces = [(region, claim or Claim(None, "none", None))

@@ -302,7 +302,9 @@ def evaluate(
             row["wall_distance_reduction_pct"] = reduction_percent(row["wall_distance_m"], manual["wall_distance_m"])
     from rich.console import Console
 
-    Console(width=max(Console().width, 120)).print(metrics_table(rows))
+    # (a file or a pipe takes the table at its own width: rich's 80 columns there cut figures)
+    terminal = Console()
+    Console(width=max(terminal.width, 120) if terminal.is_terminal else 1000).print(metrics_table(rows))
 
 def main():
     app()

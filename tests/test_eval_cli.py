@@ -48,6 +48,19 @@ def finished_run(tmp_path_factory):
     return root / "seq", root / "out"
 
 
+def test_eval_into_a_file_cuts_no_figure(finished_run, tmp_path):
+    """Into a file or a pipe rich takes 80 columns (it took 120 here), and the table's figures
+    came out cut ("0.0…"); a long run name now folds, and the table takes its own width."""
+    seq, out = finished_run
+    long_name = tmp_path / ("a_run_whose_folder_name_is_long_" * 3)
+    shutil.copytree(out, long_name)
+    result = CliRunner().invoke(app, ["eval", str(long_name), "--gt", str(seq)])
+    assert result.exit_code == 0, result.output
+    assert "…" not in result.output
+    row = next(line for line in result.output.splitlines() if line.startswith("│ a_run_whose"))
+    assert all(cell.strip() for cell in row.split("│")[2:-1])  # (every figure on the name's first line)
+
+
 def test_eval_of_a_missing_run_or_truth_is_one_line(finished_run, tmp_path):
     seq, out = finished_run
     result = CliRunner().invoke(app, ["eval", str(tmp_path / "nope"), "--gt", str(seq)])

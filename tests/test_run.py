@@ -498,9 +498,36 @@ def test_the_api_refuses_a_keyframe_that_does_not_follow_and_goes_on(world):
             backend.process(bad)
     with pytest.raises(InputError, match="not finite"):
         backend.process(scene.keyframes[20].model_copy(update={"T_S_C": (float("nan"),) + tuple(scene.keyframes[20].T_S_C[1:])}))
+    # (a plane set after validation, as a caller may)
+    nan_plane = scene.keyframes[20].model_copy(deep=True)
+    nan_plane.planes[0].d = float("nan")
+    with pytest.raises(InputError, match="keyframe 20: plane 0 .* is not finite"):
+        backend.process(nan_plane)
     assert backend.process(scene.keyframes[20]).index == 20
     with pytest.raises(InputError, match="no keyframes"):
         run_offline([], scene.plane_map, BackendConfig(), scene.initial)
+
+
+def test_the_api_stops_where_the_graph_becomes_singular(world):
+    """A step the front-end gives as certain to 3e-9 that the planes contradict by 0.5 m
+    makes the linear system singular: gtsam's multi-line RuntimeError escaped the API, and
+    every later keyframe failed with "key already exists". Now a SingularError names the
+    keyframe, and the backend, which iSAM2 left holding it in part, refuses every later one
+    with the same words."""
+    from bimgraph.config import BackendConfig
+    from bimgraph.errors import SingularError
+
+    scene, _ = world
+    backend = Backend(scene.plane_map, BackendConfig(), scene.initial)
+    for kf in scene.keyframes[:20]:
+        backend.process(kf)
+    kf = scene.keyframes[20]
+    certain = kf.model_copy(update={"cov": tuple(tuple(1e-17 * (i == j) for j in range(6)) for i in range(6)),
+                                    "T_S_C": (kf.T_S_C[0] + 0.5, *kf.T_S_C[1:])})
+    with pytest.raises(SingularError, match="^keyframe 20: the graph's linear system became singular"):
+        backend.process(certain)
+    with pytest.raises(SingularError, match="^keyframe 21: this Backend stopped at keyframe 20"):
+        backend.process(scene.keyframes[21])
 
 
 def test_an_unfinished_runs_report_is_not_read(world, tmp_path):

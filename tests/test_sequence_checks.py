@@ -42,6 +42,11 @@ def test_keyframes_far_from_the_origin_of_s_are_told():
     (warning,) = sequence_warnings(far)
     assert warning.startswith("keyframes lie up to 102 km from the origin of S") and "subtract the first keyframe" in warning
     assert sequence_warnings(keyframes([None] * 5)) == []
+    # a walk that jumps away names the keyframe where it does (a front-end's glitch)
+    jump = keyframes([None] * 5)
+    jump[3:] = [kf.model_copy(update={"T_S_C": (kf.T_S_C[0] + 1e6, *kf.T_S_C[1:])}) for kf in jump[3:]]
+    (warning,) = sequence_warnings(jump)
+    assert f"from keyframe {jump[3].index} on (stamp {jump[3].stamp})" in warning
 
 
 def test_the_run_prints_the_warning(world, tmp_path):

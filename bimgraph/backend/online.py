@@ -14,7 +14,7 @@ from bimgraph.backend.alignment import Alignment, levelled, lock_directions, unl
 from bimgraph.backend.associate_bim import FaceIndex
 from bimgraph.backend.associate_slam import Observation, SlamAssociator
 from bimgraph.backend.depth_tilt import DepthTilt
-from bimgraph.backend.graph import MOVED_ANCHOR, TILT, E, L, X, FactorBuilder, cov_T_B_S, pose3
+from bimgraph.backend.graph import MOVED_ANCHOR, TILT, E, L, X, FactorBuilder, cov_T_B_S, pose3, singular_as_error
 from bimgraph.backend.incremental import FrozenPlane, IncrementalGraph
 from bimgraph.backend.landmarks import Landmark, LandmarkTable, observation_points, transform_points
 from bimgraph.backend.odometry import OdometryModel
@@ -23,7 +23,7 @@ from bimgraph.backend.online_bim import OnlineBimAssociation
 from bimgraph.backend.online_judgement import OnlineJudgement
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig, Isam2Config
-from bimgraph.errors import InputError
+from bimgraph.errors import InputError, SingularError
 from bimgraph.sequence.format import Keyframe, out_of_order
 
 Oracle = Mapping[tuple[int, int], "str | None"]
@@ -91,19 +91,32 @@ class Backend:
         self._keyframes: list[Keyframe] = []  # so far, for the drift's fit
         self._count = 0
         self._due: dict[int, bool] = {}  # observation count -> `covariance_due` (numpy's log2 per landmark and keyframe costs)
+        self._stopped: int | None = None  # the keyframe where the graph became singular
         self.matches = OnlineBimAssociation(self.faces, cfg, self.graph, self.landmarks, self.listener,
                                             self.extrinsic_covariance, self.slam.gate, self._observe if merge else None)
         self.judge = OnlineJudgement(self.faces, self.build, self.landmarks, cfg)
 
     # -- the step ---------------------------------------------------------------------------
     def process(self, kf: Keyframe) -> KeyframeResult:
+        """Keyframe `kf` into the graph; its causal result. An InputError (a keyframe that does
+        not follow, a value not finite) leaves the backend as it was. A SingularError (the
+        graph's linear system became singular) stops it: gtsam's iSAM2 holds that keyframe in
+        part, and every later call raises the error again (a new Backend starts over)."""
+        if self._stopped is not None:
+            raise SingularError(f"keyframe {kf.index}: this Backend stopped at keyframe {self._stopped}, where the "
+                                "graph became singular; start a new one")
         start = time.perf_counter()
         isam2_before = self.graph.update_seconds
-        observations, observed, values = self.advance(kf)
+        try:
+            with singular_as_error():
+                observations, observed, values = self.advance(kf)
+                T_S_B = values.atPose3(E)
+                cov = self.extrinsic_covariance(T_S_B) if self.covariance else np.full((6, 6), np.nan)
+        except SingularError as err:
+            self._stopped = kf.index
+            raise SingularError(f"keyframe {kf.index}: {err}") from None
         T_S_C = values.atPose3(X(kf.index)).matrix()
-        T_S_B = values.atPose3(E)
         T_B_S = T_S_B.inverse().matrix()
-        cov = self.extrinsic_covariance(T_S_B) if self.covariance else np.full((6, 6), np.nan)
         result = KeyframeResult(
             index=kf.index, stamp=kf.stamp, T_S_C=T_S_C, T_B_C=T_B_S @ T_S_C, T_B_S=T_B_S, cov_T_B_S=cov,
             associations=[Association(obs.index, j, self._face_of(j, T_B_S))
@@ -203,12 +216,16 @@ class Backend:
     def _check_follows(self, kf: Keyframe) -> None:
         """InputError, before the graph is touched, for a keyframe that does not follow the
         last (gtsam would refuse its pose's key, and the graph would hold half of it) or whose
-        pose is not finite (`Keyframe`'s own checks pass by where a caller sets fields)."""
+        pose or planes are not finite (`Keyframe`'s own checks pass by where a caller sets
+        fields)."""
         if self._keyframes and out_of_order(last := self._keyframes[-1], kf):
             raise InputError(f"keyframe {kf.index} (stamp {kf.stamp}) does not follow keyframe {last.index} "
                              f"(stamp {last.stamp}): indices and stamps must increase")
         if not all(math.isfinite(v) for v in kf.T_S_C):
             raise InputError(f"keyframe {kf.index}: T_S_C {list(kf.T_S_C)} is not finite")
+        for i, p in enumerate(kf.planes):
+            if not all(math.isfinite(v) for v in (*p.n, p.d)):
+                raise InputError(f"keyframe {kf.index}: plane {i} (n {list(p.n)}, d {p.d}) is not finite")
 
     def _add_pose(self, kf: Keyframe) -> np.ndarray:
         self._keyframes.append(kf)

@@ -38,11 +38,12 @@ def metrics_table(rows: list[dict]):
               "prec./recall: association against ground truth", "ms/kf: median online latency per keyframe",
               "truth: the ground truth measured alike"]
     table = Table(title="bimgraph evaluation", caption="; ".join(item for item in legend if item))
+    # (a figure is never cut: where the width is short, the method's name folds)
     for _, title, _ in present:
         if title == "method":
-            table.add_column(title, no_wrap=True)
+            table.add_column(title, overflow="fold")
         else:
-            table.add_column(title, justify="right")
+            table.add_column(title, justify="right", no_wrap=True)
     for row in rows:
         table.add_row(*[_cell(fmt, row.get(key)) for key, _, fmt in present])
     return table

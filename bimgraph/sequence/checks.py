@@ -32,8 +32,11 @@ def sequence_warnings(keyframes: list[Keyframe]) -> list[str]:
         out.append(f"{bare} of {len(planes)} plane detections have no polygon: without their extents the views of one "
                    "wall are seldom joined into one landmark, and few or none are matched to BIM faces (the "
                    "associations' extent gates and geometric filters need them; docs/formats.md)")
-    if keyframes and (far := max(float(np.linalg.norm(kf.T_S_C[:3])) for kf in keyframes)) > _FAR_M:
-        out.append(f"keyframes lie up to {far / 1000:.3g} km from the origin of S: T_B_S turns about that origin, so "
+    distances = [float(np.linalg.norm(kf.T_S_C[:3])) for kf in keyframes]
+    if keyframes and (far := max(distances)) > _FAR_M:
+        first = next(kf for kf, distance in zip(keyframes, distances) if distance > _FAR_M)
+        out.append(f"keyframes lie up to {far / 1000:.3g} km from the origin of S, from keyframe {first.index} on "
+                   f"(stamp {first.stamp}): T_B_S turns about that origin, so "
                    "its rotation's uncertainty moves the walk by that lever, and the graph loses precision (beyond "
                    "about 10 km it is singular); give poses in a frame near the walk (e.g. subtract the first "
                    "keyframe's position, and move the initial alignment with it)")

@@ -17,18 +17,20 @@ import yaml
 from bimgraph.errors import FormatError, InputError
 
 
-def existing_file(path: Path) -> Path:
-    """`path`, if it is a file; else InputError saying what it is instead."""
+def existing_file(path: Path, stream: bool = False) -> Path:
+    """`path`, if it is a file (or, with `stream`, anything readable as one: a pipe, such as
+    the shell's `<(...)`, a device); else InputError saying what it is instead."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: " + ("a folder, not a file" if path.is_dir() else "no such file"))
+    if not (path.is_file() or stream and path.exists() and not path.is_dir()):
+        raise InputError(f"{path}: " + ("a folder, not a file" if path.is_dir() else
+                                        "not a regular file" if path.exists() else "no such file"))
     return path
 
 
 def read_text(path: Path) -> str:
-    """A text file's content. Missing or unreadable: InputError; not UTF-8 text (a binary file
-    given by mistake): FormatError. Never a traceback."""
-    path = existing_file(path)
+    """A text file's content (or a pipe's). Missing or unreadable: InputError; not UTF-8 text
+    (a binary file given by mistake): FormatError. Never a traceback."""
+    path = existing_file(path, stream=True)
     try:
         # (utf-8-sig: Windows editors start a file with a byte-order mark, which json refuses)
         return path.read_text(encoding="utf-8-sig")

@@ -1,6 +1,8 @@
 """The configuration file: whatever is wrong with it is one line naming the file (and the line
 or the field), exit code 4, never a traceback; `config --check` refuses what a run would."""
 
+from pathlib import Path
+
 import pytest
 from typer.testing import CliRunner
 
@@ -120,3 +122,24 @@ def test_plane_cells_larger_than_the_image_are_a_configuration_error():
     cfg = Config()
     with pytest.raises(ConfigError, match="planes.cell_size_px: cells of 20 px leave fewer than 2x2 cells in the camera's 30x30 image"):
         PlaneExtractor(Camera(width=30, height=30, fx=30, fy=30, cx=15, cy=15), cfg.planes, cfg.depth_noise)
+
+
+def test_a_config_from_a_pipe_is_read(tmp_path):
+    """`--config <(...)` (the shell's pipe) and `/dev/null` were refused as "no such file";
+    files that are read whole (IFC, images) still need a regular one, and say so."""
+    import os
+    import threading
+
+    from bimgraph.config import load_config
+    from bimgraph.errors import InputError
+    from bimgraph.files import existing_file
+
+    fifo = tmp_path / "config.fifo"
+    os.mkfifo(fifo)
+    writer = threading.Thread(target=lambda: fifo.write_text("backend:\n  isam2:\n    judge_every: 7\n"))
+    writer.start()
+    assert load_config(fifo).backend.isam2.judge_every == 7
+    writer.join()
+    assert load_config(Path("/dev/null")) == Config()
+    with pytest.raises(InputError, match="config.fifo: not a regular file"):
+        existing_file(fifo)

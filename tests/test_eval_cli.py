@@ -251,3 +251,18 @@ def test_a_run_measured_against_another_sequence_is_refused(finished_run, tmp_pa
     assert not (out / "metrics.json").exists() or "other" not in (out / "metrics.json").read_text()
     shutil.copytree(seq, tmp_path / "copy")
     assert CliRunner().invoke(app, ["eval", str(out), "--gt", str(tmp_path / "copy"), "--no-baselines"]).exit_code == 0
+
+
+def test_eval_of_a_killed_run_stops_where_its_files_do(finished_run, tmp_path):
+    """A run killed outright between two saves of its JSON files (every 50 keyframes) has
+    trajectory lines past the keyframe its summary and associations cover: eval measured them
+    too, as keyframes without associations (recall 0.80 for 0.98 on the review's walk)."""
+    seq, out = finished_run
+    killed = tmp_path / "killed"
+    shutil.copytree(out, killed)
+    summary = json.loads((killed / "summary.json").read_text())
+    summary.update(keyframes=20, finished=False)
+    (killed / "summary.json").write_text(json.dumps(summary))
+    result = CliRunner().invoke(app, ["eval", str(killed), "--gt", str(seq), "--no-baselines"])
+    assert result.exit_code == 0, result.output
+    assert json.loads((killed / "metrics.json").read_text())["keyframes"] == 20

@@ -21,7 +21,7 @@ from bimgraph.errors import InputError
 from bimgraph.files import ensure_folder, read_json, uninterrupted, write_json
 from bimgraph.geometry import plane_from_frame, pose_to_tum, sigmas_in_B
 from bimgraph.sequence.format import Vec3
-from bimgraph.sequence.tum import format_tum, write_tum
+from bimgraph.sequence.tum import format_tum, read_tum, write_tum
 from bimgraph.validation import Pose7, parse_model
 
 TRAJECTORY_BIM = "trajectory_bim.tum"
@@ -161,6 +161,17 @@ class SummaryFile(_File):
 
 def load_summary(path: Path) -> SummaryFile:
     return parse_model(SummaryFile, read_json(path), str(path))
+
+
+def run_trajectory(out_dir: Path, name: str) -> tuple[list, list]:
+    """A run's trajectory file `name` (stamps, 4x4 poses) up to the keyframe its summary
+    counts: a run killed outright (SIGKILL, power) between two saves of its JSON files wrote
+    trajectory lines past the last one, which its associations and extrinsic do not cover."""
+    stamps, poses = read_tum(Path(out_dir) / name)
+    if (summary := Path(out_dir) / SUMMARY).is_file():
+        keyframes = load_summary(summary).keyframes
+        stamps, poses = stamps[:keyframes], poses[:keyframes]
+    return stamps, poses
 
 
 def load_extrinsic(path: Path) -> ExtrinsicFile:

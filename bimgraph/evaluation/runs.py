@@ -12,7 +12,7 @@ import numpy as np
 
 from bimgraph.backend.pipeline import initial_alignment, load_model, model_path, run_model
 from bimgraph.backend.results import (ASSOCIATIONS, EXTRINSIC, METRICS, SUMMARY, TRAJECTORY_BIM, check_stamps,
-                                      load_associations, load_extrinsic, load_summary)
+                                      load_associations, load_extrinsic, load_summary, run_trajectory)
 from bimgraph.config import Config
 from bimgraph.deviations.report import FACE_STATUSES, WIDTH_STATUSES, run_report
 from bimgraph.errors import FormatError, InputError
@@ -22,7 +22,6 @@ from bimgraph.files import write_json
 from bimgraph.geometry import pose_from_tum, sigmas_in_B
 from bimgraph.sequence.format import KEYFRAMES_FILE, Sequence, load_sequence
 from bimgraph.sequence.groundtruth import GroundTruth, load_groundtruth
-from bimgraph.sequence.tum import read_tum
 
 
 
@@ -31,7 +30,7 @@ def load_estimate(out_dir: Path) -> Estimate:
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
         raise InputError(f"{out_dir}: no such output folder")
-    stamps, T_B_C = read_tum(out_dir / TRAJECTORY_BIM)
+    stamps, T_B_C = run_trajectory(out_dir, TRAJECTORY_BIM)
     if len(T_B_C) == 0:
         raise InputError(f"{out_dir}: the run has no keyframe to evaluate (it stopped at its first)")
     extrinsic = load_extrinsic(out_dir / EXTRINSIC)

@@ -99,8 +99,7 @@ def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | N
     `T_B_C @ inverse(T_S_C)` from the two trajectories; associations are the final ones."""
     from bimgraph.backend.pipeline import initial_alignment, load_model, model_path, run_model
     from bimgraph.backend.results import (ASSOCIATIONS, SUMMARY, TRAJECTORY_BIM, TRAJECTORY_SLAM, check_stamps,
-                                          load_associations, load_summary)
-    from bimgraph.sequence.tum import read_tum
+                                          load_associations, load_summary, run_trajectory)
 
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
@@ -114,8 +113,8 @@ def view_outputs(out_dir: Path, seq_dir: Path | None, cfg: Config, bim: Path | N
             raise InputError(f"{seq_dir}: the run's sequence is not there (moved?); give it with --sequence SEQDIR")
     seq = load_sequence(seq_dir)
     plane_map = load_model(bim or run_model(out_dir, seq.root) or model_path(seq.root, seq.meta, None), cfg)
-    stamps, T_B_C = read_tum(out_dir / TRAJECTORY_BIM)
-    stamps_slam, T_S_C = read_tum(out_dir / TRAJECTORY_SLAM)
+    stamps, T_B_C = run_trajectory(out_dir, TRAJECTORY_BIM)
+    stamps_slam, T_S_C = run_trajectory(out_dir, TRAJECTORY_SLAM)
     if len(stamps) == 0:
         raise InputError(f"{out_dir}: the run has no keyframe to show (it stopped at its first)")
     if len(stamps_slam) != len(stamps):

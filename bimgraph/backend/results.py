@@ -164,13 +164,13 @@ def load_summary(path: Path) -> SummaryFile:
 
 
 def run_trajectory(out_dir: Path, name: str) -> tuple[list, list]:
-    """A run's trajectory file `name` (stamps, 4x4 poses) up to the keyframe its summary
-    counts: a run killed outright (SIGKILL, power) between two saves of its JSON files wrote
-    trajectory lines past the last one, which its associations and extrinsic do not cover."""
+    """A run's trajectory file `name` (stamps, 4x4 poses); of an unfinished run, up to the
+    keyframe its summary counts: one killed outright (SIGKILL, power) between two saves of its
+    JSON files wrote trajectory lines past the last, which its associations and extrinsic do
+    not cover."""
     stamps, poses = read_tum(Path(out_dir) / name)
-    if (summary := Path(out_dir) / SUMMARY).is_file():
-        keyframes = load_summary(summary).keyframes
-        stamps, poses = stamps[:keyframes], poses[:keyframes]
+    if (path := Path(out_dir) / SUMMARY).is_file() and not (summary := load_summary(path)).finished:
+        stamps, poses = stamps[:summary.keyframes], poses[:summary.keyframes]
     return stamps, poses
 
 

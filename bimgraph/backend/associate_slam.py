@@ -147,11 +147,12 @@ class SlamAssociator:
         if n_obs == 0 or len(landmarks) == 0:
             return out
         stacked = Stacked.of(observations)
-        i, js = np.nonzero(self.candidates(stacked, T_S_C, landmarks))
-        d2 = mahalanobis_to_landmarks(stacked, T_S_C, landmarks, (i, js))
+        pairs = np.nonzero(self.candidates(stacked, T_S_C, landmarks))
+        if len(pairs[0]) == 0:
+            return out
+        d2 = mahalanobis_to_landmarks(stacked, T_S_C, landmarks, pairs)
         gated = d2 <= self.gate
-        i, js, d2 = i[gated], js[gated], d2[gated]
-        scores = {(i, j): score for i, j, score in zip(i.tolist(), js.tolist(), d2.tolist())
+        scores = {(i, j): score for i, j, score in zip(pairs[0][gated].tolist(), pairs[1][gated].tolist(), d2[gated].tolist())
                   if extent_gap(observations[i], landmarks.T_A_S[j] @ T_S_C, landmarks[j], landmarks.bases_A[j]) <= self.cfg.max_extent_gap_m}
         if not scores:
             return out

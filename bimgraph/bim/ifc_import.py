@@ -181,10 +181,11 @@ def _wall_faces(reader: ModelReader, walls, meshes, voids, solids, cfg, log, pro
             holes = [F.plane_section(o.V, o.T, face, cfg.opening_slice_depth_m) for o in openings]
             # an opening that ends inside the wall (a niche, a recess for a cabinet) has a back
             # a scanner sees as a plane of its own (after the wall's sides, whose ids stay)
-            recesses += [WallFace(wall, back, depth - (back.offset - face.offset), back.offset - face.offset)
-                         for o, hole in zip(openings, holes) if not hole.is_empty
-                         and (back := F.recess_back(o, face, depth, meshes[wall.id()], openings, cfg.opening_slice_depth_m,
-                                                    cfg.grid_m)) is not None]
+            for opening, hole in zip(openings, holes):
+                if not hole.is_empty and (back := F.recess_back(opening, face, depth, meshes[wall.id()], openings,
+                                                                cfg.opening_slice_depth_m, cfg.grid_m)) is not None:
+                    recess = back.offset - face.offset
+                    recesses.append(WallFace(wall, back, depth - recess, recess))
             holes += [F.plane_section(m.V, m.T, face, -cfg.lining_gap_m) for m in linings.over(face, wall)]
             holes = [h for h in holes if not h.is_empty]
             if holes:

@@ -71,7 +71,7 @@ def bim(
 ):
     """Import an IFC model: every wall side face, split per room, as an oriented plane in B.
 
-    Example: bimgraph bim ../shared/data/ifc/AC20-FZK-Haus.ifc -o planes.json
+    Example: bimgraph bim building.ifc -o planes.json
     """
     from bimgraph.bim.ifc_import import import_ifc
     from bimgraph.bim.planemap import save_plane_map

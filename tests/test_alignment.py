@@ -85,6 +85,9 @@ def test_seed_pairs_that_disagree_are_refused(cfg):
     np.testing.assert_allclose(good.T_B_S[:3, :3], T_B_S[:3, :3], atol=1e-6)
     with pytest.raises(ConfigError, match=r"seed 0:1:N: its plane lies \d+ deg from its face .* the pairs disagree"):
         align_from_seeds(planes_S, planes_B[::-1], cfg, prior, labels=["0:0:E", "0:1:N"])
+    floor_S = plane_from_frame(np.array([0.0, 0.0, 1.0, 0.0]), inverse(T_B_S))
+    with pytest.raises(ConfigError, match=r"seed 0:2:N: its plane lies 90 deg .* that plane is not that face"):
+        align_from_seeds(floor_S[None], planes_B[:1], cfg, prior, labels=["0:2:N"])  # (one pair: nothing to disagree with)
 
 
 def test_seed_alignment_carries_the_detections_noise(cfg):

@@ -407,7 +407,8 @@ def test_simulate_says_each_step_before_the_keyframes(tmp_path):
 def test_a_simulation_replaces_an_earlier_one_whole_and_nothing_else(tmp_path, monkeypatch):
     """Into the folder of an earlier simulation: its files go, a depth walk's images with them
     (they outlived a planes walk written over it), once the new one is complete (stopped, the
-    earlier one stays as it was). A folder of other files, or of a sequence not simulated, is
+    earlier one stays as it was). A folder of other files, of a sequence not simulated, or of
+    a simulated sequence and a run's outputs (which the new walk would leave stale), is
     refused: it was written over without a word."""
     from typer.testing import CliRunner
 
@@ -438,6 +439,11 @@ def test_a_simulation_replaces_an_earlier_one_whole_and_nothing_else(tmp_path, m
     assert CliRunner().invoke(app, ["simulate", "-o", str(seq), "-n", "5", "--seed", "2"]).exit_code == 0
     assert sorted(p.name for p in seq.iterdir()) == ["groundtruth", "keyframes.jsonl", "model.ifc", "notes.txt", "sequence.json"]
     assert len(load_sequence(seq).keyframes) == 5
+    (seq / "summary.json").write_text("{}")
+    result = CliRunner().invoke(app, ["simulate", "-o", str(seq), "-n", "3"])
+    assert_one_line_error(result, 2, "holds a run's outputs (summary.json)")
+    assert len(load_sequence(seq).keyframes) == 5 and (seq / "summary.json").read_text() == "{}"
+    (seq / "summary.json").unlink()
 
     others = tmp_path / "run"
     others.mkdir()

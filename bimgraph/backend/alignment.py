@@ -165,7 +165,8 @@ def align_from_seeds(planes_S: np.ndarray, planes_B: np.ndarray, cfg: BackendCon
     plane and the detection's covariance (None: the default), which the covariance then
     carries; without it the planes count as exact. A gravity-aligned prior makes it a turn about
     z. ConfigError where a pair's normals stay more than `seed_max_angle_deg` apart once turned
-    (the pairs disagree: one is wrong), naming it by its `labels` entry."""
+    (the pairs disagree: one is wrong; a single pair: its plane and face tilt differently),
+    naming it by its `labels` entry."""
     planes_S, planes_B = np.asarray(planes_S, float).reshape(-1, 4), np.asarray(planes_B, float).reshape(-1, 4)
     if len(planes_S) == 0 or len(planes_S) != len(planes_B):
         raise InputError(f"seed alignment needs pairs of planes, got {len(planes_S)} and {len(planes_B)}")
@@ -178,8 +179,9 @@ def align_from_seeds(planes_S: np.ndarray, planes_B: np.ndarray, cfg: BackendCon
         name = labels[worst] if labels else f"pair {worst}"
         raise ConfigError(f"seed {name}: its plane lies {angles[worst]:.0f} deg from its face once the seeds are turned onto "
                          f"the plan{' about the vertical' if prior.gravity_aligned else ''} (at most "
-                         f"{cfg.seed_max_angle_deg:g}, backend.seed_max_angle_deg): the pairs disagree, one of them is not "
-                         "that plane and face")
+                         f"{cfg.seed_max_angle_deg:g}, backend.seed_max_angle_deg): "
+                         + ("the pairs disagree, one of them is not that plane and face" if len(angles) > 1 else
+                            "that plane is not that face (one tilts more than the other)"))
     # offsets: d_B = d_S - n_B . t, regularised toward the prior where the normals say nothing
     n_B = planes_S[:, :3] @ R.T
     info_t = n_B.T @ n_B + 1e-6 * np.eye(3)

@@ -178,6 +178,11 @@ def clear_previous_run(out_dir: Path, recording: Path | None = None) -> None:
     _remove(out_dir, [name + ".tmp" for name in _RUN_FILES])  # (a run killed while it wrote one)
 
 
+def run_outputs_in(folder: Path) -> list[str]:
+    """The names of the files a run (or `eval`) wrote that `folder` holds."""
+    return [name for name in _RUN_FILES if (Path(folder) / name).is_file()]
+
+
 def _remove(out_dir: Path, names) -> None:
     for name in names:
         (Path(out_dir) / name).unlink(missing_ok=True)

@@ -159,6 +159,11 @@ def _check_replaceable(out: Path) -> None:
                          "or over a sequence it simulated before")
     if load_meta(out).simulated is None:
         raise InputError(f"{out}: holds a sequence that was not simulated; simulate would replace it")
+    from bimgraph.backend.pipeline import run_outputs_in  # (a second of gtsam, for a folder that holds a sequence)
+
+    if outputs := run_outputs_in(out):
+        raise InputError(f"{out}: holds a run's outputs ({', '.join(outputs)}), which a new walk would leave "
+                         "stale; move them, or simulate into another folder")
 
 
 def _simulate(opts: SimOptions, cfg: Config, log: Callable[[str], None], progress: Callable[[int, int], None],

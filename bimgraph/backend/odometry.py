@@ -1,7 +1,7 @@
 """The graph's model of the front-end's odometry (online and offline): its poses, parsed once,
 its steps without the drift measured so far (`bimgraph.backend.drift`), under its noise scaled
 by the variance factors estimated from the smoothed steps (`bimgraph.backend.tolerance`,
-offline only). No I/O."""
+offline only), and across a long stretch without planes by `isam2.gap_odometry_scale`. No I/O."""
 
 from __future__ import annotations
 
@@ -30,6 +30,12 @@ _STEPS_AT_ONCE = 25
 class OdometryModel:
     def __init__(self, build: FactorBuilder):
         self.build = build
+        # the steps in and out of a long stretch without planes (`gap_steps`) have their noise
+        # sigmas scaled
+        self.gap_keyframes, self._gap_variance = build.cfg.isam2.judge_gap_keyframes, build.cfg.isam2.gap_odometry_scale**2
+        self._gap: set[int] = set()  # keyframes whose step in is a gap's
+        self._stretch: list[Keyframe] = []  # `follow`'s current stretch without planes...
+        self._before: Keyframe | None = None  # ...and the keyframe before it
         self._drift = DriftRates()
         self.variance = np.ones(2)  # factors on the given noise: rotation, translation
         self._poses: dict[int, np.ndarray] = {}  # keyframe -> its front-end pose (parsing it is slow)
@@ -74,7 +80,39 @@ class OdometryModel:
         return self._covs[kf.index]
 
     def _cov(self, kf: Keyframe) -> np.ndarray:
-        return self._given_cov(kf) * self._scale
+        return self._given_cov(kf) * (self._scale * self._gap_variance if kf.index in self._gap else self._scale)
+
+    def in_gap(self, kf: Keyframe) -> bool:
+        """Whether the step into `kf` is a gap's (as far as marked)."""
+        return kf.index in self._gap
+
+    def mark_gaps(self, keyframes: list[Keyframe]) -> None:
+        """The gaps of a whole walk."""
+        self._mark([kf for kf, gap in zip(keyframes[1:], gap_steps(keyframes, self.gap_keyframes)) if gap])
+
+    def follow(self, kf: Keyframe) -> list[tuple[Keyframe, Keyframe]]:
+        """The next keyframe of a walk seen keyframe by keyframe (before its step's factor is
+        made): marks the gaps as they show, and returns the steps before `kf` that a gap
+        marked only now, whose factors must be made again (those of the stretch, once it is
+        long enough to be one)."""
+        if not kf.planes:
+            self._stretch.append(kf)
+            if len(self._stretch) > self.gap_keyframes:
+                self._mark([kf])
+            elif len(self._stretch) == self.gap_keyframes:
+                self._mark(self._stretch)
+                steps = zip([self._before, *self._stretch], self._stretch[:-1])
+                return [(previous, kf) for previous, kf in steps if previous is not None]
+            return []
+        if len(self._stretch) >= self.gap_keyframes:
+            self._mark([kf])  # (the step out of it)
+        self._before, self._stretch = kf, []
+        return []
+
+    def _mark(self, keyframes: list[Keyframe]) -> None:
+        for kf in keyframes:
+            self._gap.add(kf.index)
+            self._factors.pop(kf.index, None)
 
     def step(self, previous: Keyframe, kf: Keyframe) -> np.ndarray:
         """The front-end's step from `previous` to `kf` without its drift."""
@@ -120,7 +158,7 @@ class OdometryModel:
         onto the poses of `_STEPS_AT_ONCE` steps at a time, equal to gtsam's `Marginals` pair by pair to
         1e-13 and 2-3x faster on a 600-keyframe walk; all of the walk's at once would be one
         dense marginal of thousands of dimensions)."""
-        steps = list(zip(keyframes, keyframes[1:]))
+        steps = [(previous, kf) for previous, kf in zip(keyframes, keyframes[1:]) if not self.in_gap(kf)]
         if len(steps) > max_steps:
             steps = [steps[i] for i in np.unique(np.linspace(0, len(steps) - 1, max_steps).round().astype(int))]
         terms = []
@@ -135,3 +173,21 @@ class OdometryModel:
     def summary(self) -> dict:
         scale = np.sqrt(self.variance)
         return {**self.drift.summary(), "odometry_sigma_scale": {"rotation": float(scale[0]), "translation": float(scale[1])}}
+
+
+def gap_steps(keyframes: list[Keyframe], min_run: int) -> np.ndarray:
+    """Per step (into each keyframe but the first), whether it lies in a stretch of at least
+    `min_run` keyframes without planes, or leads out of one. Over such a stretch the front-end's
+    errors add up alike (a heading turning steadily), faster than its per-step covariance
+    says, and nothing but the odometry holds the walk."""
+    bare = np.array([not kf.planes for kf in keyframes])
+    given = np.zeros(len(keyframes), dtype=bool)
+    start = None
+    for i, empty in enumerate([*bare, False]):
+        if empty and start is None:
+            start = i
+        elif not empty and start is not None:
+            if i - start >= min_run:
+                given[start:min(i + 1, len(keyframes))] = True  # (and the step out of it)
+            start = None
+    return given[1:]

@@ -96,6 +96,7 @@ class OfflineEstimator:
         start = time.perf_counter()
         timings = {} if timings is None else timings
         values = without_tilt(self.online.graph.estimate())
+        self.odometry.mark_gaps(keyframes)
         observations = {kf.index: observations_of(kf, self.online.build) for kf in keyframes}
 
         solve = BatchSolver(self.cfg.offline.max_iterations, self.cfg.offline.relative_error_tol)

@@ -229,6 +229,8 @@ class Backend:
 
     def _add_pose(self, kf: Keyframe) -> np.ndarray:
         self._keyframes.append(kf)
+        for before, gap in self.odometry.follow(kf):
+            self.graph.add_odometry(gap.index, self.odometry.factor(before, gap))
         if self._previous is None:
             guess = self.odometry.pose(kf)
             self.graph.add(self.build.first_pose(kf.index, guess))

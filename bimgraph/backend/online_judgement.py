@@ -8,7 +8,7 @@ alignment, and each sound wall seen after it is outvoted alone. The judgement de
 stiff copy of the walk (`isam2.judge_odometry_scale`): under the odometry noise as given (a
 front-end's conservative default) the walk bends around such a wall until its misfit looks
 like noise (office 1: walls built 4.0-6.6 cm off ended at 1.7 sigma, kept); but not across
-a long stretch without planes (`gap_steps`). The iSAM2 graph
+a long stretch without planes (`odometry.gap_steps`). The iSAM2 graph
 keeps the noise as given; only the verdicts come back to it. Each judgement is challenged by
 its complement, and where the one turned down is about as likely, the extrinsic's covariance
 covers it too (`_challenge`).
@@ -36,7 +36,7 @@ class OnlineJudgement:
         p = cfg.isam2.judge_studentized_probability
         self.alignment = RobustAlignment(faces, build, landmarks, cfg.offline.model_copy(
             update={"studentized": p is not None, "studentized_probability": p or cfg.offline.studentized_probability}))
-        self.odometry_scale, self.gap_keyframes = cfg.isam2.judge_odometry_scale, cfg.isam2.judge_gap_keyframes
+        self.odometry_scale = cfg.isam2.judge_odometry_scale
         self._stiff: OdometryModel | None = None  # the scaled odometry, while the drift it was made with stands
         self._solve = BatchSolver(cfg.offline.gnc_iterations, cfg.offline.relative_error_tol)
         # the rival consensus's share of the extrinsic's covariance (`_challenge`), as the last judgement left it
@@ -95,30 +95,10 @@ class OnlineJudgement:
                    keyframes: list[Keyframe]) -> gtsam.NonlinearFactorGraph:
         """Every factor of `graph` but the plane-to-BIM ones, with the odometry's noise scaled
         by `isam2.judge_odometry_scale`, except across stretches without planes
-        (`isam2.judge_gap_keyframes`): the graph the judgement decides on."""
+        (`isam2.judge_gap_keyframes`, `OdometryModel.in_gap`): the graph the judgement decides on."""
         if self._stiff is None or self._stiff.drift is not odometry.drift:
             self._stiff = odometry.scaled(self.odometry_scale)
         rest = graph.without_bim(odometry=False)
-        given = gap_steps(keyframes, self.gap_keyframes)
-        for step, (previous, kf) in enumerate(zip(keyframes, keyframes[1:])):
-            rest.add((odometry if given[step] else self._stiff).factor(previous, kf))
+        for previous, kf in zip(keyframes, keyframes[1:]):
+            rest.add((odometry if odometry.in_gap(kf) else self._stiff).factor(previous, kf))
         return rest
-
-
-def gap_steps(keyframes: list[Keyframe], min_run: int) -> np.ndarray:
-    """Per step (into each keyframe but the first), whether it lies in a stretch of at least
-    `min_run` keyframes without planes, or leads out of one. Stiffened, the front-end's noise
-    is fit for a walk the walls hold every few steps; over a long stretch its errors add up
-    alike (a heading turning steadily), faster than its per-step covariance says, and a
-    stiffened walk could not be turned back by the walls seen again."""
-    bare = np.array([not kf.planes for kf in keyframes])
-    given = np.zeros(len(keyframes), dtype=bool)
-    start = None
-    for i, empty in enumerate([*bare, False]):
-        if empty and start is None:
-            start = i
-        elif not empty and start is not None:
-            if i - start >= min_run:
-                given[start:min(i + 1, len(keyframes))] = True  # (and the step out of it)
-            start = None
-    return given[1:]

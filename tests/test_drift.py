@@ -103,7 +103,7 @@ def test_a_jump_the_front_end_reports_is_no_drift():
     keyframes = [kf.model_copy(update={"T_S_C": tuple(pose_to_tum(T)),
                                        "cov": tuple(map(tuple, jump)) if kf.index == 60 else None})
                  for kf, T in zip(scene.keyframes, frontend)]
-    odometry = OdometryModel(FactorBuilder(BackendConfig()))
+    odometry = OdometryModel(FactorBuilder(BackendConfig()), np.array([0.0, 0.0, 1.0]))
     regular = odometry.regular(keyframes)
     assert not regular[59] and regular.sum() == len(keyframes) - 2
     rates = drift.estimate(frontend, T_S_C, odometry.step_sigmas(keyframes), 0.999, regular)
@@ -181,7 +181,7 @@ def test_odometry_factors_are_rebuilt_when_the_drift_or_the_noise_changes():
     from bimgraph.backend.odometry import OdometryModel
     from bimgraph.sequence.format import Keyframe
 
-    model = OdometryModel(FactorBuilder(BackendConfig()))
+    model = OdometryModel(FactorBuilder(BackendConfig()), np.array([0.0, 0.0, 1.0]))
     a, b = (Keyframe(index=k, stamp=float(k), T_S_C=[float(k), 0, 0, 0, 0, 0, 1]) for k in range(2))
     first = model.factor(a, b)
     assert model.factor(a, b) is first

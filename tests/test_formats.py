@@ -198,6 +198,9 @@ def test_sequence_loads(tmp_path):
     [
         (dict(KF, index=1, T_S_C=[0, 0, 0, 0, 0, 0, 2]), "line 2: T_S_C"),
         (dict(KF, index=1, planes=[{"n": [0, 0, -1]}]), r"line 2: planes\[0\].d"),
+        # (a normal away from the camera, or a plane given in S, read "Input should be greater than 0")
+        (dict(KF, index=1, stamp=0.1, planes=[{"n": [0, 0, 1], "d": -2.0}]),
+         r"line 2: planes\[0\].d: -2: d is the camera's distance to the plane, > 0, with n toward the camera .with d < 0, flip n and d"),
         (dict(KF, index=0), "line 2: index"),
         (dict(KF, index=1, stamp=0.0), "line 2: stamp: 0.0 does not follow 0.0"),
         (dict(KF, index=1, stamp=0.1, planes=[dict(KF["planes"][0], polygon=[[0, 0, 2], [1, 0, 2]])]),

@@ -265,7 +265,13 @@ def test_seed_alignment_and_bad_seed(world, tmp_path):
     assert result.exit_code == 0, result.output
     result = run(root, "-o", tmp_path / "out2", "--seed", "0:99:r00S")
     # (found once the progress bar is up: rich ended it with a blank line before the error)
-    assert_one_line_error(result, 4, "no plane 99")
+    assert_one_line_error(result, 4, "no plane 99 in keyframe 0 (it has")
+    assert_one_line_error(run(root, "-o", tmp_path / "out2", "--seed", "999:0:r00S"), 4, "no keyframe 999 in the sequence")
+    # one pair naming the wall opposite its plane: the run went on turned 180 deg, 13 m off
+    i, face = next((i, scene.truth[(0, i)]) for i in range(len(scene.keyframes[0].planes)) if scene.truth[(0, i)])
+    opposite = face[:-1] + {"N": "S", "S": "N", "E": "W", "W": "E"}[face[-1]]
+    result = run(root, "-o", tmp_path / "out2", "--seed", f"0:{i}:{opposite}")
+    assert_one_line_error(result, 4, "the --seed pairs turn T_B_S 178 deg from the initial alignment, 89 times its sigma_rot_deg (2)")
 
 
 def test_a_run_without_an_alignment_says_so_and_why_nothing_matched(world, tmp_path):

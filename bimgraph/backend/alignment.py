@@ -22,8 +22,10 @@ from scipy.spatial.transform import Rotation
 from bimgraph.backend.graph import E, L, X, FactorBuilder, cov_T_B_S, pose3, sigmas_cov
 from bimgraph.config import BackendConfig
 from bimgraph.errors import ConfigError, InputError
-from bimgraph.geometry import least_rotation, make_pose, plane_to_frame, rotation_from_correlation
+from bimgraph.geometry import least_rotation, make_pose, plane_to_frame, rotation_angle_deg, rotation_from_correlation
 
+# seed pairs turning T_B_S further than this many rotation sigmas of the user's alignment are refused
+_SEED_SIGMAS = 5.0
 _WEAK = 1e6  # variance factor of the prior in the directions the seeds observe
 # (the same in a graph whose seeds come at a later keyframe: until then, widened 1e6, the
 # extrinsic's information was 1e-11 of the first pose's, and iSAM2 found it singular; at 1e2
@@ -158,7 +160,8 @@ def _rotation_from_normals(normals_S: np.ndarray, normals_B: np.ndarray, R_prior
 
 def align_from_seeds(planes_S: np.ndarray, planes_B: np.ndarray, cfg: BackendConfig,
                      prior: Alignment | None = None, centres_B: np.ndarray | None = None,
-                     labels: list[str] | None = None, seen: list[tuple[np.ndarray, np.ndarray | None]] | None = None) -> Alignment:
+                     labels: list[str] | None = None, seen: list[tuple[np.ndarray, np.ndarray | None]] | None = None,
+                     prior_given: bool = False) -> Alignment:
     """`T_B_S` from seed pairs (plane in S, BIM face plane in B, with the faces' centres if
     known), its covariance, and the directions the seeds leave unobservable (which keep the
     prior's uncertainty). `seen`: per pair, the pose `T_S_C` of the keyframe that detected the
@@ -166,7 +169,9 @@ def align_from_seeds(planes_S: np.ndarray, planes_B: np.ndarray, cfg: BackendCon
     carries; without it the planes count as exact. A gravity-aligned prior makes it a turn about
     z. ConfigError where a pair's normals stay more than `seed_max_angle_deg` apart once turned
     (the pairs disagree: one is wrong; a single pair: its plane and face tilt differently),
-    naming it by its `labels` entry."""
+    naming it by its `labels` entry; with `prior_given` (the user's alignment, not a default),
+    also where the seeds turn `T_B_S` further from it than `_SEED_SIGMAS` of its rotation's
+    sigma (one pair naming the wall opposite its plane turned a run 180 deg, 13 m off)."""
     planes_S, planes_B = np.asarray(planes_S, float).reshape(-1, 4), np.asarray(planes_B, float).reshape(-1, 4)
     if len(planes_S) == 0 or len(planes_S) != len(planes_B):
         raise InputError(f"seed alignment needs pairs of planes, got {len(planes_S)} and {len(planes_B)}")
@@ -182,6 +187,11 @@ def align_from_seeds(planes_S: np.ndarray, planes_B: np.ndarray, cfg: BackendCon
                          f"{cfg.seed_max_angle_deg:g}, backend.seed_max_angle_deg): "
                          + ("the pairs disagree, one of them is not that plane and face" if len(angles) > 1 else
                             "that plane is not that face (one tilts more than the other)"))
+    sigma_rot = prior.largest_sigmas()[0]
+    if prior_given and (turn := np.radians(rotation_angle_deg(R.T @ prior.T_B_S[:3, :3]))) > _SEED_SIGMAS * sigma_rot:
+        raise ConfigError(f"the --seed pairs turn T_B_S {np.degrees(turn):.0f} deg from the initial alignment, "
+                          f"{turn / sigma_rot:.0f} times its sigma_rot_deg ({np.degrees(sigma_rot):.3g}): a pair names the "
+                          "wrong plane or face (the wall opposite?), or the alignment is wrong or its sigma too small")
     # offsets: d_B = d_S - n_B . t, regularised toward the prior where the normals say nothing
     n_B = planes_S[:, :3] @ R.T
     info_t = n_B.T @ n_B + 1e-6 * np.eye(3)

@@ -1,11 +1,13 @@
 """The graph's model of the front-end's odometry (online and offline): its poses, parsed once,
 its steps without the drift measured so far (`bimgraph.backend.drift`), under its noise scaled
 by the variance factors estimated from the smoothed steps (`bimgraph.backend.tolerance`,
-offline only), and across a long stretch without planes by `isam2.gap_odometry_scale`. No I/O."""
+offline only), and across a long stretch without upright planes by
+`isam2.gap_odometry_scale`. No I/O."""
 
 from __future__ import annotations
 
 import copy
+import math
 
 import gtsam
 import numpy as np
@@ -28,11 +30,14 @@ _STEPS_AT_ONCE = 25
 
 
 class OdometryModel:
-    def __init__(self, build: FactorBuilder):
+    def __init__(self, build: FactorBuilder, up_S: np.ndarray):
+        """`up_S`: B's vertical in S (by the initial alignment), which tells level planes."""
         self.build = build
-        # the steps in and out of a long stretch without planes (`gap_steps`) have their noise
-        # sigmas scaled
+        # the steps in and out of a long stretch without upright planes (`gap_steps`) have
+        # their noise sigmas scaled
         self.gap_keyframes, self._gap_variance = build.cfg.isam2.judge_gap_keyframes, build.cfg.isam2.gap_odometry_scale**2
+        self.up_S = np.asarray(up_S, dtype=float)
+        self._cos_level = float(np.cos(np.radians(build.cfg.isam2.freeze_max_tilt_deg)))
         self._gap: set[int] = set()  # keyframes whose step in is a gap's
         self._stretch: list[Keyframe] = []  # `follow`'s current stretch without planes...
         self._before: Keyframe | None = None  # ...and the keyframe before it
@@ -82,20 +87,28 @@ class OdometryModel:
     def _cov(self, kf: Keyframe) -> np.ndarray:
         return self._given_cov(kf) * (self._scale * self._gap_variance if kf.index in self._gap else self._scale)
 
+    def holds_heading(self, kf: Keyframe) -> bool:
+        """Whether keyframe `kf` sees an upright plane: level ones (floors, ceilings) hold
+        neither the heading nor the position along them, which is what drifts."""
+        ux, uy, uz = (self.pose(kf)[:3, :3].T @ self.up_S).tolist()  # (in C; plain floats for a few planes)
+        return any(abs(nx * ux + ny * uy + nz * uz) < self._cos_level * math.sqrt(nx * nx + ny * ny + nz * nz)
+                   for nx, ny, nz in (p.n for p in kf.planes))
+
     def in_gap(self, kf: Keyframe) -> bool:
         """Whether the step into `kf` is a gap's (as far as marked)."""
         return kf.index in self._gap
 
     def mark_gaps(self, keyframes: list[Keyframe]) -> None:
         """The gaps of a whole walk."""
-        self._mark([kf for kf, gap in zip(keyframes[1:], gap_steps(keyframes, self.gap_keyframes)) if gap])
+        held = [self.holds_heading(kf) for kf in keyframes]
+        self._mark([kf for kf, gap in zip(keyframes[1:], gap_steps(held, self.gap_keyframes)) if gap])
 
     def follow(self, kf: Keyframe) -> list[tuple[Keyframe, Keyframe]]:
         """The next keyframe of a walk seen keyframe by keyframe (before its step's factor is
         made): marks the gaps as they show, and returns the steps before `kf` that a gap
         marked only now, whose factors must be made again (those of the stretch, once it is
         long enough to be one)."""
-        if not kf.planes:
+        if not self.holds_heading(kf):
             self._stretch.append(kf)
             if len(self._stretch) > self.gap_keyframes:
                 self._mark([kf])
@@ -175,19 +188,19 @@ class OdometryModel:
         return {**self.drift.summary(), "odometry_sigma_scale": {"rotation": float(scale[0]), "translation": float(scale[1])}}
 
 
-def gap_steps(keyframes: list[Keyframe], min_run: int) -> np.ndarray:
+def gap_steps(held: list[bool], min_run: int) -> np.ndarray:
     """Per step (into each keyframe but the first), whether it lies in a stretch of at least
-    `min_run` keyframes without planes, or leads out of one. Over such a stretch the front-end's
-    errors add up alike (a heading turning steadily), faster than its per-step covariance
-    says, and nothing but the odometry holds the walk."""
-    bare = np.array([not kf.planes for kf in keyframes])
-    given = np.zeros(len(keyframes), dtype=bool)
+    `min_run` keyframes that hold no heading (`held`: per keyframe, whether it sees an upright
+    plane), or leads out of one. Over such a stretch the front-end's errors add up alike (a
+    heading turning steadily), faster than its per-step covariance says, and nothing but the
+    odometry holds the walk."""
+    given = np.zeros(len(held), dtype=bool)
     start = None
-    for i, empty in enumerate([*bare, False]):
-        if empty and start is None:
+    for i, holds in enumerate([*held, True]):
+        if not holds and start is None:
             start = i
-        elif not empty and start is not None:
+        elif holds and start is not None:
             if i - start >= min_run:
-                given[start:min(i + 1, len(keyframes))] = True  # (and the step out of it)
+                given[start:min(i + 1, len(held))] = True  # (and the step out of it)
             start = None
     return given[1:]

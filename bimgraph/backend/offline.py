@@ -73,7 +73,7 @@ class OfflineEstimator:
         self.oracle = oracle
         self.reassociation = Reassociation(self.landmarks, self.faces, self.online.matches.bim, cfg, self.listener, self.online.matches.apart)
         self.judge = RobustAlignment(self.faces, self.online.build, self.landmarks, cfg.offline)
-        self.odometry = OdometryModel(self.online.build)  # the front-end's drift and noise, as measured
+        self.odometry = OdometryModel(self.online.build, self.online.odometry.up_S)  # the front-end's drift and noise, as measured
         self.odometry.drift = self.online.odometry.drift  # (an online run's, as a start)
         # (landmark, anchor, keyframe, plane index) -> its observation factor: the graph is
         # rebuilt a score of times, and its plane factors change only where landmarks do

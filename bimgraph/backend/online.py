@@ -87,7 +87,7 @@ class Backend:
         self.seeds = initial.seeds
         self._landmark_of_face: dict[str, int] = {}
         self._previous: tuple[Keyframe, np.ndarray] | None = None  # the keyframe before and its estimate
-        self.odometry = OdometryModel(self.build)  # the front-end's drift, taken out as found
+        self.odometry = OdometryModel(self.build, self.prior.T_B_S[2, :3])  # the front-end's drift, taken out as found
         self._keyframes: list[Keyframe] = []  # so far, for the drift's fit
         self._count = 0
         self._due: dict[int, bool] = {}  # observation count -> `covariance_due` (numpy's log2 per landmark and keyframe costs)

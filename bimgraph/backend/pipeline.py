@@ -103,14 +103,18 @@ def parse_seed(text: str) -> tuple[int, int, str]:
 
 
 def seed_alignment(keyframes: list[Keyframe], plane_map: PlaneMap, seeds: list[tuple[int, int, str]],
-                   cfg: Config, prior: Alignment) -> Alignment:
+                   cfg: Config, prior: Alignment, prior_given: bool = False) -> Alignment:
     """The start of a graph whose seed pairs (keyframe, plane index, BIM face id) are matched
-    from the outset: `T_B_S` by plane registration of the pairs (`seeded_start`)."""
+    from the outset: `T_B_S` by plane registration of the pairs (`seeded_start`); with
+    `prior_given` (the user's alignment, not the default), one that turns far from it is refused."""
     by_index = {kf.index: kf for kf in keyframes}
     planes_S, planes_B, centres_B, seen = [], [], [], []
     for k, i, face in seeds:
-        if k not in by_index or i >= len(by_index[k].planes):
-            raise ConfigError(f"seed {k}:{i}:{face}: no plane {i} in keyframe {k}")
+        if k not in by_index:
+            raise ConfigError(f"seed {k}:{i}:{face}: no keyframe {k} in the sequence")
+        if i >= len(by_index[k].planes):
+            raise ConfigError(f"seed {k}:{i}:{face}: no plane {i} in keyframe {k} (it has {len(by_index[k].planes)}, "
+                              "counted from 0)")
         if face not in plane_map.index:
             raise ConfigError(f"seed {k}:{i}:{face}: no face {face!r} in the plane map")
         kf = by_index[k]
@@ -119,7 +123,7 @@ def seed_alignment(keyframes: list[Keyframe], plane_map: PlaneMap, seeds: list[t
         centres_B.append(plane_map.faces[plane_map.index[face]].centre)
         seen.append((kf.pose, kf.planes[i].cov))
     seeded = align_from_seeds(np.array(planes_S), np.array(planes_B), cfg.backend, prior, np.array(centres_B),
-                              [f"{k}:{i}:{face}" for k, i, face in seeds], seen)
+                              [f"{k}:{i}:{face}" for k, i, face in seeds], seen, prior_given)
     return seeded_start(prior, seeded, {(k, i): face for k, i, face in seeds})
 
 
@@ -221,10 +225,12 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
                 if any(kf.depth for kf in sequence.keyframes) else "")
         raise InputError(f"{seq_dir}: no keyframe has a plane detection{hint}")
     if log is not None:
-        for warning in sequence_warnings(sequence.keyframes):
+        for warning in sequence_warnings(sequence.keyframes, meta):
             log(f"warning: {seq_dir}: {warning}")
+        if (warning := plane_map.far_warning()) is not None:
+            log(f"warning: {inputs.model}: {warning}")
     if seeds:
-        initial = seed_alignment(sequence.keyframes, plane_map, list(seeds), cfg, initial)
+        initial = seed_alignment(sequence.keyframes, plane_map, list(seeds), cfg, initial, meta.initial_alignment is not None)
     elif meta.initial_alignment is None and log is not None:
         noise = cfg.backend.noise
         log(f"warning: {seq_dir / 'sequence.json'} gives no initial_alignment and no --seed pair was given: T_B_S "

@@ -36,6 +36,9 @@ _SLAB_MIN_UP = 0.9
 # (the IFC import leaves it out); a steeper "wall" in a hand-written map is a floor or a
 # ceiling, and would be matched as one.
 WALL_MAX_LEAN_RAD = np.radians(30.0)
+# faces farther than this from B's origin (the variable `E` is T_S_B, turned about B's origin:
+# 3 km out a hand-written map made every run singular; a map in millimetres reads as this)
+_FAR_M = 1000.0
 
 
 class Space(BaseModel):
@@ -182,6 +185,16 @@ class PlaneMap(BaseModel):
     @cached_property
     def index(self) -> dict[str, int]:
         return {f.id: i for i, f in enumerate(self.faces)}
+
+    def far_warning(self) -> str | None:
+        """Why faces far from B's origin will go wrong, or None."""
+        far = float(np.linalg.norm(self.centres, axis=1).max(initial=0.0))
+        if far <= _FAR_M:
+            return None
+        return (f"the plane map's faces lie up to {far / 1000:.3g} km from B's origin: the graph's extrinsic turns "
+                "about it, so it loses precision, and beyond a few km the graph is singular; give the faces in metres "
+                "and in a frame near the building (subtract a point of it from every face's polygon, centre and "
+                "offset, and from T_B_S's translation)")
 
     def walls(self) -> list[BimFace]:
         return [f for f in self.faces if f.kind == "wall"]

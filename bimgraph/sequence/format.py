@@ -105,7 +105,7 @@ class PlaneObservation(BaseModel):
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     n: Vec3
-    d: float = Field(gt=0)
+    d: float
     cov: Mat3 | None = None
     polygon: list[Vec3] | None = None
     area: float | None = Field(default=None, ge=0)
@@ -117,6 +117,14 @@ class PlaneObservation(BaseModel):
     @classmethod
     def _unit(cls, n):
         return require_unit(n, "normal")
+
+    @field_validator("d")
+    @classmethod
+    def _facing(cls, d):
+        if not d > 0:
+            raise ValueError(f"{d:g}: d is the camera's distance to the plane, > 0, with n toward the camera (with d < 0, "
+                             "flip n and d; planes are given in the camera frame C, not in S)")
+        return d
 
     @field_validator("cov")
     @classmethod

@@ -38,7 +38,8 @@ def not_seconds(stamp: float) -> str | None:
     if abs(stamp) < _MAX_STAMP_S:
         return None
     unit = "nanoseconds" if abs(stamp) >= 1e17 else "microseconds" if abs(stamp) >= 1e14 else "milliseconds"
-    return f"{stamp:.17g} is not in seconds (it looks like {unit}): stamps are seconds, such as 1700000000.123456"
+    return (f"{stamp:.17g} is not in seconds (it looks like {unit}, if Unix time): stamps are seconds, such as "
+            "1700000000.123456 (divide milliseconds by 1e3, microseconds by 1e6, nanoseconds by 1e9)")
 
 
 def data_lines(path: Path):

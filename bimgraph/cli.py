@@ -174,7 +174,7 @@ def run(
     output: Path = typer.Option(..., "--output", "-o", help="Folder for the trajectories, extrinsic, associations, landmarks, summary."),
     bim_model: Optional[Path] = typer.Option(None, "--bim", help="IFC model or plane map JSON; default: the model sequence.json names."),
     mode: str = typer.Option("online", "--mode", metavar="online|offline", help="online (keyframe by keyframe, causal) or offline (whole sequence, smoothed)."),
-    seed: list[str] = typer.Option([], "--seed", help="Seed pair KEYFRAME:PLANE:FACE_ID for the initial alignment (repeat it; two walls at an angle fix the heading, pairs that disagree are refused); default: the sequence's manual alignment."),
+    seed: list[str] = typer.Option([], "--seed", help="Seed pair KEYFRAME:PLANE:FACE_ID for the initial alignment: keyframe index, the plane's position in that keyframe's planes list (from 0), the BIM face's id (repeat it; two walls at an angle fix the heading; pairs that disagree, or that turn T_B_S far from sequence.json's initial alignment, are refused); default: the sequence's manual alignment."),
     oracle: bool = typer.Option(False, "--oracle", help="Use the ground-truth associations of a simulated sequence (the reference the association is measured by)."),
     rrd: Optional[Path] = typer.Option(None, "--rrd", help="Save a Rerun recording of the run to this .rrd file (open it with: rerun FILE)."),
     spawn: bool = typer.Option(False, "--spawn", help="Open the Rerun viewer and stream the run to it as it goes."),

@@ -39,7 +39,7 @@ class OdometryModel:
         self.up_S = np.asarray(up_S, dtype=float)
         self._cos_level = float(np.cos(np.radians(build.cfg.isam2.freeze_max_tilt_deg)))
         self._gap: set[int] = set()  # keyframes whose step in is a gap's
-        self._stretch: list[Keyframe] = []  # `follow`'s current stretch without planes...
+        self._stretch: list[Keyframe] = []  # `follow`'s current stretch without upright planes...
         self._before: Keyframe | None = None  # ...and the keyframe before it
         self._drift = DriftRates()
         self.variance = np.ones(2)  # factors on the given noise: rotation, translation

@@ -8,7 +8,7 @@ alignment, and each sound wall seen after it is outvoted alone. The judgement de
 stiff copy of the walk (`isam2.judge_odometry_scale`): under the odometry noise as given (a
 front-end's conservative default) the walk bends around such a wall until its misfit looks
 like noise (office 1: walls built 4.0-6.6 cm off ended at 1.7 sigma, kept); but not across
-a long stretch without planes (`odometry.gap_steps`). The iSAM2 graph
+a long stretch without upright planes (`odometry.gap_steps`). The iSAM2 graph
 keeps the noise as given; only the verdicts come back to it. Each judgement is challenged by
 its complement, and where the one turned down is about as likely, the extrinsic's covariance
 covers it too (`_challenge`).
@@ -94,7 +94,7 @@ class OnlineJudgement:
     def stiff_rest(self, graph: IncrementalGraph, odometry: OdometryModel,
                    keyframes: list[Keyframe]) -> gtsam.NonlinearFactorGraph:
         """Every factor of `graph` but the plane-to-BIM ones, with the odometry's noise scaled
-        by `isam2.judge_odometry_scale`, except across stretches without planes
+        by `isam2.judge_odometry_scale`, except across stretches without upright planes
         (`isam2.judge_gap_keyframes`, `OdometryModel.in_gap`): the graph the judgement decides on."""
         if self._stiff is None or self._stiff.drift is not odometry.drift:
             self._stiff = odometry.scaled(self.odometry_scale)

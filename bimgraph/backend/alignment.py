@@ -187,10 +187,10 @@ def align_from_seeds(planes_S: np.ndarray, planes_B: np.ndarray, cfg: BackendCon
                          f"{cfg.seed_max_angle_deg:g}, backend.seed_max_angle_deg): "
                          + ("the pairs disagree, one of them is not that plane and face" if len(angles) > 1 else
                             "that plane is not that face (one tilts more than the other)"))
-    sigma_rot = prior.largest_sigmas()[0]
-    if prior_given and (turn := np.radians(rotation_angle_deg(R.T @ prior.T_B_S[:3, :3]))) > _SEED_SIGMAS * sigma_rot:
-        raise ConfigError(f"the --seed pairs turn T_B_S {np.degrees(turn):.0f} deg from the initial alignment, "
-                          f"{turn / sigma_rot:.0f} times its sigma_rot_deg ({np.degrees(sigma_rot):.3g}): a pair names the "
+    sigma_deg = np.degrees(prior.largest_sigmas()[0])
+    if prior_given and (turn_deg := rotation_angle_deg(R.T @ prior.T_B_S[:3, :3])) > _SEED_SIGMAS * sigma_deg:
+        raise ConfigError(f"the --seed pairs turn T_B_S {turn_deg:.0f} deg from the initial alignment, "
+                          f"{turn_deg / sigma_deg:.0f} times its sigma_rot_deg ({sigma_deg:.3g}): a pair names the "
                           "wrong plane or face (the wall opposite?), or the alignment is wrong or its sigma too small")
     # offsets: d_B = d_S - n_B . t, regularised toward the prior where the normals say nothing
     n_B = planes_S[:, :3] @ R.T

@@ -18,8 +18,6 @@ _BARE_FRACTION = 0.9
 # couples with its translation by this lever (1 km: 2 deg there is 35 m at the walk; at 10 km
 # and more, the graph's linear systems are singular to double precision)
 _FAR_M = 1000.0
-
-
 # with S gravity-aligned, the image's down axis (C's y) of a camera carried upright points
 # down (a z-component in S below `_NOT_DOWN`) but where it looks nearly straight up or down:
 # in more keyframes than `_NOT_DOWN_SHARE`, a frame convention has gone wrong
@@ -39,18 +37,18 @@ def sequence_warnings(keyframes: list[Keyframe], meta: SequenceMeta | None = Non
     got wrong."""
     out = []
     if meta is not None and meta.gravity_aligned and keyframes:
-        down_z = np.array([_image_down_z(kf.T_S_C) for kf in keyframes])
+        down_z = np.array([kf.pose[2, 1] for kf in keyframes])  # (C's y axis in S, its z-component)
         if (share := float(np.mean(down_z > _NOT_DOWN))) > _NOT_DOWN_SHARE:
             out.append(f"gravity_aligned is true, yet in {share:.0%} of the keyframes the image's down axis (C's y) "
                        "does not point down in S: S must have z up, and C OpenCV's axes (x right, y down, z "
                        f"forward); {_CONVENTIONS}")
     if meta is not None and meta.gravity_aligned and meta.initial_alignment is not None:
-        tilt = np.degrees(np.arccos(np.clip(_rotation_z(meta.initial_alignment.T_B_S)[2], -1.0, 1.0)))
+        tilt = np.degrees(np.arccos(np.clip(pose_from_tum(meta.initial_alignment.T_B_S)[2, 2], -1.0, 1.0)))
         if tilt > _ALIGNMENT_TILT_DEG:
             out.append(f"gravity_aligned is true, yet initial_alignment's T_B_S tilts S's z {tilt:.0f} deg from B's: "
                        f"only its turn about z is kept; {_CONVENTIONS}")
-    if (rot := _median_step_sigmas(keyframes)) is not None and (rot[0] < _TINY_ROT_RAD or rot[1] < _TINY_TRANS_M):
-        out.append(f"the keyframes' cov gives a step's sigmas of {np.degrees(rot[0]):.2g} deg and {1000 * rot[1]:.2g} mm "
+    if (sigmas := _median_step_sigmas(keyframes)) is not None and (sigmas[0] < _TINY_ROT_RAD or sigmas[1] < _TINY_TRANS_M):
+        out.append(f"the keyframes' cov gives a step's sigmas of {np.degrees(sigmas[0]):.2g} deg and {1000 * sigmas[1]:.2g} mm "
                    "(median): bimgraph trusts the walk to that, and walls the walk cannot bend to are judged off "
                    "plan; a front-end's steps are good to millimetres and hundredths of a degree at best")
     if len(keyframes) > 2 and (step := float(np.median(np.diff([kf.stamp for kf in keyframes])))) > _SLOW_STEP_S:
@@ -75,16 +73,6 @@ def sequence_warnings(keyframes: list[Keyframe], meta: SequenceMeta | None = Non
                    "about 10 km it is singular); give poses in a frame near the walk (e.g. subtract the first "
                    "keyframe's position, and move the initial alignment with it)")
     return out
-
-
-def _image_down_z(T_S_C) -> float:
-    """The z-component in S of C's y axis, from a pose `tx ty tz qx qy qz qw`."""
-    return float(pose_from_tum(T_S_C)[2, 1])
-
-
-def _rotation_z(T_A_B) -> np.ndarray:
-    """B's z axis in A, from a pose `tx ty tz qx qy qz qw`."""
-    return pose_from_tum(T_A_B)[:3, 2]
 
 
 def _median_step_sigmas(keyframes: list[Keyframe]) -> tuple[float, float] | None:

@@ -58,6 +58,8 @@ class FrontEndConfig(Section):
     gravity_aligned: bool = Field(True, description="S has z up (as AR trackers do); else S is the first camera frame")
     translation_drift: float = Field(0.01, ge=0, description="position drift per metre travelled (0.01 = 1 %)")
     yaw_drift_deg_per_m: float = Field(0.2, ge=0, description="heading drift per metre travelled")
+    scale_error: float = Field(0.0, gt=-0.5, lt=0.5, description="each step's length is off by this share "
+                               "(0.01 = 1 % too long, as a wheel odometry's or a tracker's scale error); the planes stay metric")
     random_walk_m: float = Field(0.003, ge=0, description="position random walk, metres per square-root metre travelled")
     random_walk_deg: float = Field(0.05, ge=0, description="rotation random walk, degrees per square-root metre travelled")
     noise_m: float = Field(0.002, ge=0, description="white noise on each keyframe position")

@@ -4,7 +4,8 @@ S is the first camera's pose, turned to have z up when `gravity_aligned` (as AR 
 report: gravity is observed, heading and position are not). The estimate integrates the true
 motion with a heading error growing with the distance travelled (`yaw_drift_deg_per_m` plus a
 random walk) and a position bias growing with it (`translation_drift` in a fixed horizontal
-direction plus a random walk), and adds white noise to each reported pose. So the final
+direction plus a random walk), each step's length off by `scale_error`, and adds white noise
+to each reported pose. So the final
 position error is about `translation_drift` times the distance (before the heading error's
 share) and the final heading error about `yaw_drift_deg_per_m` times the distance. Pure maths.
 """
@@ -79,7 +80,7 @@ def simulate_frontend(T_B_C: np.ndarray, cfg: FrontEndConfig, rng: np.random.Gen
         if cfg.gravity_aligned:
             rot_walk = (rot_walk @ up_S) * up_S  # roll and pitch stay observed through gravity
         R_drift = Rotation.from_rotvec(yaw_rate * length * up_S + rot_walk).as_matrix() @ R_drift
-        p = p + R_drift @ step + cfg.translation_drift * length * bias_direction \
+        p = p + (1.0 + cfg.scale_error) * (R_drift @ step) + cfg.translation_drift * length * bias_direction \
             + rng.standard_normal(3) * cfg.random_walk_m * np.sqrt(length)
         T_S_C.append(make_pose(R_drift @ T_S_C_true[k][:3, :3], p))
     T_S_C = np.array(T_S_C)

@@ -289,6 +289,20 @@ def test_a_building_map_is_tested_near_the_walk_only_and_counted_whole():
     assert alone == {face_id: n for face_id, n in counts.items() if face_id in alone}
 
 
+def test_a_huge_face_is_sampled_coarser_not_without_bound():
+    """A plane map in millimetres read as metres (a wall 13 km across) asked the grid for 24 GB.
+    The grid is coarsened on such a face; the samples still stand for its whole area."""
+    from bimgraph.deviations.visibility import _MAX_CELLS, sample_faces
+
+    huge = BimFace(id="huge", wall_guid="0K1h3Qe3j8Nuv5bzvOkWdm", normal=(-1, 0, 0), offset=3000.0,
+                   polygon=[(3000, 0, 0), (3000, 13000, 0), (3000, 13000, 2500), (3000, 0, 2500)])
+    samples = sample_faces([huge, face("east")], 0.25)
+    assert (samples.face == 0).sum() <= _MAX_CELLS
+    assert samples.area_m2[samples.face == 0].sum() == pytest.approx(13000 * 2500, rel=0.01)
+    # an ordinary face keeps the configured grid
+    assert samples.area_m2[samples.face == 1][0] == 0.25**2
+
+
 def test_a_face_near_the_end_of_the_range_is_in_view_and_one_beyond_is_not():
     """A 1 m panel facing the camera 4.7 m ahead (every sample within the 5 m range) is in
     view; moved 0.5 m farther it is not; a pose not known (NaN) sees nothing and takes

@@ -105,6 +105,15 @@ def test_stamps_in_units_smaller_than_seconds_are_told():
     assert warning.startswith("keyframes lie 100 s apart (median): stamps are seconds; divide milliseconds by 1e3")
 
 
+def test_planes_in_millimetres_are_told():
+    """Distances in millimetres put every wall kilometres off: nothing matched, and the walls
+    reported possibly not built, without a word on why."""
+    in_mm = [kf.model_copy(update={"planes": [p.model_copy(update={"d": 1000.0 * p.d, "polygon": None}) for p in kf.planes]})
+             for kf in keyframes([None] * 5)]
+    assert any(w.startswith("the planes lie a median 2e+03 m from the camera: d is in metres") for w in sequence_warnings(in_mm))
+    assert not any("median" in w and "camera" in w for w in sequence_warnings(keyframes([None] * 5)))
+
+
 def test_a_plane_map_far_from_b_s_origin_is_told():
     """A hand-written map in site coordinates 3.6 km out made every run singular ("a variable
     no factor constrains"); one in millimetres reads alike."""

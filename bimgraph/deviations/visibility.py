@@ -32,6 +32,9 @@ if TYPE_CHECKING:  # (open3d takes a third of a second to load: only where rays 
 # Samples sit this far in front of their face, so that the ray to one never stops on the face
 # it belongs to.
 _LIFT_M = 0.02
+# A face's grid is coarsened to hold at most this many cells (a 0.25 m grid: 1250 m2, a large
+# facade; a plane map in millimetres read as metres, 13 km across, had asked for 24 GB)
+_MAX_CELLS = 20_000
 
 
 def face_shape(face: BimFace) -> tuple[shapely.Polygon, np.ndarray, np.ndarray]:
@@ -49,15 +52,17 @@ class FaceSamples:
 
 
 def sample_faces(faces: Sequence[BimFace], grid_m: float) -> FaceSamples:
-    """Grid points inside each face (its centre alone for faces smaller than a cell)."""
+    """Grid points inside each face (its centre alone for faces smaller than a cell), the grid
+    coarser than `grid_m` on a face it would cover with more than `_MAX_CELLS` cells."""
     points, index, area = [], [], []
     for i, face in enumerate(faces):
         shape, origin, basis = face_shape(face)
         x0, y0, x1, y1 = shape.bounds
-        gx, gy = np.meshgrid(np.arange(x0 + grid_m / 2, x1, grid_m), np.arange(y0 + grid_m / 2, y1, grid_m))
+        step = max(grid_m, float(np.sqrt((x1 - x0) * (y1 - y0) / _MAX_CELLS)))
+        gx, gy = np.meshgrid(np.arange(x0 + step / 2, x1, step), np.arange(y0 + step / 2, y1, step))
         xy = np.stack([gx.ravel(), gy.ravel()], axis=1)
         xy = xy[shapely.contains_xy(shape, xy[:, 0], xy[:, 1])]
-        cell = grid_m**2
+        cell = step**2
         if len(xy) == 0:
             xy, cell = (np.array([[shape.centroid.x, shape.centroid.y]]), shape.area) if not shape.is_empty else (xy, 0.0)
         points.append(origin + xy @ basis.T + _LIFT_M * np.asarray(face.normal))

@@ -30,6 +30,9 @@ _CONVENTIONS = ("a y-up world (ARKit, ARCore), a camera of OpenGL's axes (y up, 
 _TINY_ROT_RAD, _TINY_TRANS_M = 1e-5, 1e-5
 # keyframes further apart than this (median) are stamped in units smaller than seconds
 _SLOW_STEP_S = 60.0
+# planes farther than this from the camera (median) are not a depth sensor's or a tracker's
+# (the sensors see a few metres): millimetres read as metres
+_FAR_PLANE_M = 50.0
 
 
 def sequence_warnings(keyframes: list[Keyframe], meta: SequenceMeta | None = None) -> list[str]:
@@ -64,6 +67,9 @@ def sequence_warnings(keyframes: list[Keyframe], meta: SequenceMeta | None = Non
         out.append(f"{bare} of {len(planes)} plane detections have no polygon: without their extents the views of one "
                    "wall are seldom joined into one landmark, and few or none are matched to BIM faces (the "
                    "associations' extent gates and geometric filters need them; docs/formats.md)")
+    if planes and (median_d := float(np.median([p.d for p in planes]))) > _FAR_PLANE_M:
+        out.append(f"the planes lie a median {median_d:.3g} m from the camera: d is in metres (millimetres read as "
+                   "metres put every wall kilometres away, and none is matched to a BIM face)")
     distances = [float(np.linalg.norm(kf.T_S_C[:3])) for kf in keyframes]
     if keyframes and (far := max(distances)) > _FAR_M:
         first = next(kf for kf, distance in zip(keyframes, distances) if distance > _FAR_M)

@@ -217,6 +217,10 @@ def test_drift_matches_configured_rates(office, gravity_aligned):
     assert only_translation.drift["final_drift_percent"] == pytest.approx(2.0, rel=0.2)
     only_yaw = simulate_frontend(T_B_C, FrontEndConfig(translation_drift=0.0, yaw_drift_deg_per_m=0.3, **quiet), rng)
     assert only_yaw.drift["yaw_drift_deg_per_m"] == pytest.approx(0.3, rel=0.2)
+    only_scale = simulate_frontend(T_B_C, FrontEndConfig(translation_drift=0.0, yaw_drift_deg_per_m=0.0, scale_error=0.02,
+                                                         **quiet), rng)
+    steps = [np.linalg.norm(np.diff(T[:, :3, 3], axis=0), axis=1) for T in (only_scale.T_S_C, T_B_C)]
+    np.testing.assert_allclose(steps[0], 1.02 * steps[1], atol=1e-12)
     # With the default random walk and noise on top, the heading rate still holds.
     default = simulate_frontend(T_B_C, FrontEndConfig(gravity_aligned=gravity_aligned), rng)
     assert default.drift["yaw_drift_deg_per_m"] == pytest.approx(FrontEndConfig().yaw_drift_deg_per_m, rel=0.2)

@@ -127,6 +127,7 @@ class SigmaScale(_File):
 class FrontendDrift(_File):
     rotation_deg_per_m: Vec3
     translation_percent: Vec3
+    scale_percent: float = 0.0  # (absent before the scale was fitted)
     odometry_sigma_scale: SigmaScale
 
 

@@ -147,7 +147,8 @@ def run_summary(out_dir: Path) -> list[tuple[str, str]]:
             ("unobservable", unobservable)]
     if drift := summary.frontend_drift:
         rows.append(("front-end drift", f"correction {drift.rotation_deg_per_m[2]:+.3f} deg/m about z, "
-                                        f"{np.linalg.norm(drift.translation_percent):.2f} % of the distance"))
+                                        f"{np.linalg.norm(drift.translation_percent):.2f} % of the distance"
+                                        + (f", each step's length {drift.scale_percent:+.2f} %" if drift.scale_percent else "")))
     if (tilt := summary.depth_tilt_sigma_per_m) is not None:
         rows.append(("depth tilt", f"a variable per keyframe, prior sigma {1000 * tilt:g} mm per m^2 of depth at the image's border"))
     if challenge := summary.alignment_challenge:

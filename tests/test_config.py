@@ -42,6 +42,8 @@ def test_a_missing_configuration_file_is_one_line(tmp_path):
     ("planes:\n  min_depth_m: 9\n", "planes: min_depth_m (9.0) is above max_depth_m (7.0)"),
     ("deviations:\n  visibility_min_range_m: 6\n", "deviations: visibility_min_range_m (6.0) is above visibility_max_range_m (5.0)"),
     ("sim:\n  width: 1\n", "sim: width and height (1x480) must be at least observe.stride_px (4)"),
+    ("deviations:\n  tolerance_m: 20\n", "deviations.tolerance_m: Input should be less than or equal to 1"),  # (mm)
+    ("sim:\n  frontend:\n    scale_error: 2\n", "sim.frontend.scale_error: Input should be less than 0.5"),
     ("sim:\n  trajectory:\n    pitch_mean_deg: .nan\n", "sim.trajectory.pitch_mean_deg: Input should be a finite number"),
     ("sim:\n  trajectory:\n    height_min_m: 2.0\n    height_max_m: 1.0\n", "sim.trajectory: height_min_m (2.0) is above height_max_m (1.0)"),
     # (both passed and then failed the run: an overflow, an array of 30 GiB)

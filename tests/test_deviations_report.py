@@ -38,11 +38,16 @@ def test_json_round_trip(written):
 
 
 def test_csv_holds_the_same_rows(written):
-    _, data, out = written
+    plane_map, data, out = written
     rows = read_csv_rows(out / CSV_FILE)
     assert len(rows) == len(data.faces) + len(data.unplanned)
+    planned = {f.id: f for f in plane_map.faces}
     for row, face in zip(rows, data.faces):
         assert row["face_id"] == face.face_id and row["status"] == face.status
+        # where the offset is measured, for a reader with the report alone
+        assert face.centre == planned[face.face_id].centre and face.area_m2 == planned[face.face_id].area
+        assert [float(row[f"centre_{axis}"]) for axis in "xyz"] == list(face.centre)
+        assert float(row["area_m2"]) == face.area_m2
         if face.offset_m is None:
             assert row["offset_m"] == "" and row["offset_sigma_m"] == ""
         else:
@@ -115,13 +120,15 @@ def test_bcf_reopens_and_names_existing_walls(written, tmp_path, georeferenced):
             assert np.dot(face.normal, direction_B) < -0.5
 
 
-@pytest.mark.parametrize("version", [1, 2])
+@pytest.mark.parametrize("version", [1, 2, 3])
 def test_an_earlier_version_loads_without_the_later_fields(written, tmp_path, version):
     _, _, out = written
     raw = json.loads((out / JSON_FILE).read_text())
     raw["version"] = version
-    for later in (("contested", "widths", "thicknesses") if version == 1 else ("thicknesses",)):
+    for later in {1: ("contested", "widths", "thicknesses"), 2: ("thicknesses",), 3: ()}[version]:
         raw.pop(later)
+    for face in raw["faces"]:
+        del face["centre"], face["area_m2"]
     (tmp_path / "old.json").write_text(json.dumps(raw))
     old = load_deviations(tmp_path / "old.json")
     assert old.version == version and old.thicknesses == [] and len(old.faces) == 4

@@ -64,7 +64,9 @@ def test_eval_into_a_file_cuts_no_figure(finished_run, tmp_path):
 def test_eval_of_a_missing_run_or_truth_is_one_line(finished_run, tmp_path):
     seq, out = finished_run
     result = CliRunner().invoke(app, ["eval", str(tmp_path / "nope"), "--gt", str(seq)])
-    assert_one_line_error(result, 2, "nope")
+    assert_one_line_error(result, 2, "nope: no such output folder")
+    result = CliRunner().invoke(app, ["eval", str(out / "summary.json"), "--gt", str(seq)])
+    assert_one_line_error(result, 2, "summary.json: a file, not an output folder")
     result = CliRunner().invoke(app, ["eval", str(out), "--gt", str(tmp_path / "absent")])
     assert_one_line_error(result, 2, "absent")
 
@@ -144,6 +146,11 @@ def test_a_run_stopped_early_is_measured_over_the_keyframes_it_reached(finished_
     shutil.copytree(out, short)
     lines = (short / "trajectory_bim.tum").read_text().splitlines()
     (short / "trajectory_bim.tum").write_text("\n".join(lines[:-5]) + "\n")
+    # a finished run's files agree: one cut, or another run's, measured a precision of 0.34
+    assert_one_line_error(CliRunner().invoke(app, ["eval", str(short), "--gt", str(seq), "--no-baselines"]), 2,
+                          f"{short}: trajectory_bim.tum holds 25 poses, but summary.json says the run finished after 30 keyframes")
+    summary = json.loads((short / "summary.json").read_text())
+    (short / "summary.json").write_text(json.dumps({**summary, "finished": False, "keyframes": 25}))
     result = CliRunner().invoke(app, ["eval", str(good), str(short), "--gt", str(seq), "--no-baselines"], terminal_width=200)
     assert result.exit_code == 0, result.output
     assert "short (stopped: first 25 of 30 keyframes)" in result.output
@@ -151,6 +158,7 @@ def test_a_run_stopped_early_is_measured_over_the_keyframes_it_reached(finished_
     assert (whole["keyframes"], part["keyframes"]) == (30, 25)
     assert part["per_keyframe"]["translation_error_m"] == whole["per_keyframe"]["translation_error_m"][:25]
     (short / "trajectory_bim.tum").write_text("\n".join(lines + [lines[-1]]) + "\n")
+    (short / "summary.json").write_text(json.dumps({**summary, "finished": False, "keyframes": 31}))
     assert_one_line_error(CliRunner().invoke(app, ["eval", str(short), "--gt", str(seq), "--no-baselines"]), 3,
                           f"{short} has 31 poses for 30 keyframes")
 

@@ -12,7 +12,7 @@ from bimgraph.config.section import Section
 class DeviationConfig(Section):
     """As-built deviations of observed walls from plan (deviations.json, .csv, .bcf)."""
 
-    tolerance_m: float = Field(0.02, gt=0, description="allowed offset of a built face along its normal (common wall tolerance +/-2 cm)")
+    tolerance_m: float = Field(0.02, gt=0, le=1.0, description="allowed offset of a built face along its normal (common wall tolerance +/-2 cm; in metres: 20 for 20 mm is refused)")
     tilt_tolerance_deg: float = Field(0.5, gt=0, description="allowed tilt of a built face (about 2 cm over a 2.5 m storey)")
     k_sigma: float = Field(3.0, ge=0, description="a face deviates if |offset| - k*sigma > tolerance, or its tilt likewise (a significance test, so that noise does not make a wall deviate: each flag sends someone to the wall; on 8 simulated sites, k = 2 flagged 3 sound faces, 3 none)")
     min_keyframes: int = Field(3, ge=1, description="faces seen in fewer keyframes have not enough evidence, and unmatched planes seen in fewer are not reported as unplanned (a glimpse sends nobody to the site)")

@@ -155,7 +155,7 @@ def assess(plane_map: PlaneMap, planes: Sequence[ObservedPlane], T_S_B: np.ndarr
             under_rival = face_deviation(face, rival.planes[plane.landmark], rival.T_S_B)
             dev = mixed(own, under_rival, rival.probability)
         entry = FaceReport(face.id, face.wall_guid, face.wall_name, face.storey, classify(dev, plane.n_keyframes, cfg),
-                           plane.n_keyframes, dev, plane.landmark, how, expected.get(face.id, 0))
+                           plane.n_keyframes, dev, plane.landmark, how, expected.get(face.id, 0), face.centre, face.area)
         # Two landmarks on one face (two visits, or a glimpse beside the wall's landmark): the
         # better evidence measures it, seen in enough keyframes first, then the smaller sigma
         sigma = dev.offset_sigma_m if dev.measurable and np.isfinite(dev.offset_sigma_m) else np.inf
@@ -184,7 +184,7 @@ def assess(plane_map: PlaneMap, planes: Sequence[ObservedPlane], T_S_B: np.ndarr
         seen_from = expected.get(face.id, 0)
         if face.id not in measured and seen_from >= cfg.min_expected_keyframes:
             report.faces.append(FaceReport(face.id, face.wall_guid, face.wall_name, face.storey, "possibly_not_built",
-                                           expected_keyframes=seen_from))
+                                           expected_keyframes=seen_from, centre=face.centre, area_m2=face.area))
 
     # a plane that passes some face's tests is that face's (measuring it or not), not unplanned
     near_a_face = {p.landmark for near in candidates.values() for p in near}

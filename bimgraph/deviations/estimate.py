@@ -130,6 +130,8 @@ class FaceReport:
     landmark: int | None = None
     matched_by: Literal["graph", "proximity", ""] = ""
     expected_keyframes: int = 0
+    centre: tuple[float, float, float] | None = None  # the plane map's: where the offset is measured
+    area_m2: float | None = None
 
 
 @dataclass(frozen=True)

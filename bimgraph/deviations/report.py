@@ -18,7 +18,7 @@ from bimgraph.files import existing_file, read_json, write_atomic, write_json
 from bimgraph.validation import parse_model
 
 FORMAT = "bimgraph.deviations"
-VERSION = 3  # 2: `contested`, `widths`; 3: `thicknesses` (earlier files, without them, load as ever)
+VERSION = 4  # 2: `contested`, `widths`; 3: `thicknesses`; 4: faces' `centre`, `area_m2` (earlier files load as ever)
 JSON_FILE = "deviations.json"
 CSV_FILE = "deviations.csv"
 
@@ -46,6 +46,8 @@ class FaceRecord(BaseModel):
     expected_keyframes: int = Field(default=0, ge=0)
     landmark: int | None = None
     matched_by: Literal["graph", "proximity", ""] = ""
+    centre: Vec3 | None = None  # (the plane map's face centre in B, where `offset_m` is measured)
+    area_m2: float | None = Field(default=None, ge=0)
 
     @model_validator(mode="after")
     def _measured_faces_have_their_figures(self):
@@ -111,7 +113,7 @@ class ThicknessRecord(DistanceRecord):
 class DeviationsFile(BaseModel):
     model_config = ConfigDict(extra="forbid")
     format: Literal["bimgraph.deviations"] = FORMAT
-    version: Literal[1, 2, 3] = VERSION
+    version: Literal[1, 2, 3, 4] = VERSION
     tolerance_m: float = Field(gt=0)
     tilt_tolerance_deg: float = Field(gt=0)
     k_sigma: float = Field(ge=0)
@@ -136,7 +138,7 @@ def _face_record(f: FaceReport) -> FaceRecord:
         offset_m=dev.offset_m if dev else None, offset_sigma_m=dev.offset_sigma_m if dev else None,
         tilt_deg=dev.tilt_deg if dev else None, tilt_sigma_deg=dev.tilt_sigma_deg if dev else None,
         n_keyframes=f.n_keyframes, expected_keyframes=f.expected_keyframes, landmark=f.landmark,
-        matched_by=f.matched_by,
+        matched_by=f.matched_by, centre=None if f.centre is None else tuple(map(float, f.centre)), area_m2=f.area_m2,
     )
 
 
@@ -166,7 +168,7 @@ def to_csv(data: DeviationsFile) -> str:
     writer = csv.DictWriter(out, CSV_COLUMNS, lineterminator="\n")
     writer.writeheader()
     for f in data.faces:
-        writer.writerow({k: ("" if v is None else v) for k, v in f.model_dump().items()})
+        writer.writerow(_face_row(f))
     for u in data.unplanned:
         centre = u.centre or ("", "", "")
         writer.writerow({"status": "unplanned", "landmark": u.landmark, "n_keyframes": u.n_keyframes,
@@ -181,9 +183,14 @@ def to_csv(data: DeviationsFile) -> str:
                          "n_keyframes": t.n_keyframes, "planned_m": t.planned_m, "built_m": t.built_m})
     for explanation in data.contested:
         for f in explanation.deviating:
-            writer.writerow({**{k: ("" if v is None else v) for k, v in f.model_dump().items()}, "status": "contested",
-                             "probability": explanation.probability})
+            writer.writerow({**_face_row(f), "status": "contested", "probability": explanation.probability})
     return out.getvalue()
+
+
+def _face_row(f: FaceRecord) -> dict:
+    row = {k: ("" if v is None else v) for k, v in f.model_dump(exclude={"centre"}).items()}
+    centre = f.centre or ("", "", "")
+    return {**row, "centre_x": centre[0], "centre_y": centre[1], "centre_z": centre[2]}
 
 
 def write_deviations(report: DeviationReport, out_dir: Path) -> DeviationsFile:

@@ -29,10 +29,16 @@ def load_estimate(out_dir: Path) -> Estimate:
     """A bimgraph run's outputs as an Estimate."""
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
-        raise InputError(f"{out_dir}: no such output folder")
+        raise InputError(f"{out_dir}: " + ("a file, not an output folder" if out_dir.exists() else "no such output folder"))
     stamps, T_B_C = run_trajectory(out_dir, TRAJECTORY_BIM)
     if len(T_B_C) == 0:
         raise InputError(f"{out_dir}: the run has no keyframe to evaluate (it stopped at its first)")
+    # (a finished run's files agree; a trajectory cut or copied from another run measured an
+    # association precision of 0.34 against the wrong keyframes)
+    if (out_dir / SUMMARY).is_file() and (summary := load_summary(out_dir / SUMMARY)).finished \
+            and summary.keyframes != len(T_B_C):
+        raise InputError(f"{out_dir}: {TRAJECTORY_BIM} holds {len(T_B_C)} poses, but {SUMMARY} says the run finished "
+                         f"after {summary.keyframes} keyframes: the folder's files are not of one run")
     extrinsic = load_extrinsic(out_dir / EXTRINSIC)
     associations = load_associations(out_dir / ASSOCIATIONS).face_of_observation()
     return Estimate(list(T_B_C), pose_from_tum(extrinsic.T_B_S), associations, np.asarray(extrinsic.covariance), stamps)
@@ -159,7 +165,7 @@ def run_summary(out_dir: Path) -> list[tuple[str, str]]:
     if (deviations := run_report(out_dir, summary.finished)) is not None:
         counts = deviations.counts()
         rows.append(("walls", ", ".join(f"{counts.get(k, 0)} {k.replace('_', ' ')}" for k in FACE_STATUSES)
-                     + f"; {counts['unplanned']} unplanned planes"))
+                     + f"; {counts['unplanned']} unplanned planes (below, ± is one sigma)"))
         rows += [("deviating", f"{f.wall_name or f.wall_guid} ({f.face_id}): offset {100 * f.offset_m:+.1f} ± "
                                f"{100 * f.offset_sigma_m:.1f} cm, tilt {f.tilt_deg:.2f} ± {f.tilt_sigma_deg:.2f} deg")
                  for f in deviations.faces if f.status == "deviating"]

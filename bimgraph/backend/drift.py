@@ -103,10 +103,10 @@ def estimate(T_S_C_frontend: list[np.ndarray], T_S_C_smoothed: list[np.ndarray],
     if norm == 0.0:
         return DriftRates()
     rates = [lengths @ rotations / norm, lengths @ translations / norm]
-    scale = _scale(translations, np.einsum("nij,nj->ni", R_prev, z_t) * (lengths > 0)[:, None], lengths,
-                   None if step_sigmas is None else step_sigmas[1], probability)
+    steps_S = (F[1:, :3, 3] - F[:-1, :3, 3]) * (lengths > 0)[:, None]
+    scale = _scale(translations, steps_S, lengths, None if step_sigmas is None else step_sigmas[1], probability)
     if scale:
-        rates[1] = (lengths @ translations - scale * (lengths @ (F[1:, :3, 3] - F[:-1, :3, 3]))) / norm
+        rates[1] = (lengths @ translations - scale * (lengths @ steps_S)) / norm
     if step_sigmas is not None:
         # each component of a rate has the standard error sigma / sqrt(sum of squared lengths)
         for block, sigma in enumerate(step_sigmas):

@@ -138,7 +138,7 @@ def _face_record(f: FaceReport) -> FaceRecord:
         offset_m=dev.offset_m if dev else None, offset_sigma_m=dev.offset_sigma_m if dev else None,
         tilt_deg=dev.tilt_deg if dev else None, tilt_sigma_deg=dev.tilt_sigma_deg if dev else None,
         n_keyframes=f.n_keyframes, expected_keyframes=f.expected_keyframes, landmark=f.landmark,
-        matched_by=f.matched_by, centre=None if f.centre is None else tuple(map(float, f.centre)), area_m2=f.area_m2,
+        matched_by=f.matched_by, centre=f.centre, area_m2=f.area_m2,
     )
 
 
@@ -170,9 +170,8 @@ def to_csv(data: DeviationsFile) -> str:
     for f in data.faces:
         writer.writerow(_face_row(f))
     for u in data.unplanned:
-        centre = u.centre or ("", "", "")
         writer.writerow({"status": "unplanned", "landmark": u.landmark, "n_keyframes": u.n_keyframes,
-                         "area_m2": u.area_m2, "centre_x": centre[0], "centre_y": centre[1], "centre_z": centre[2]})
+                         "area_m2": u.area_m2, **_centre_columns(u.centre)})
     for w in data.widths:
         writer.writerow({"status": f"width_{w.status}", "face_id": " ".join(w.faces), "room": w.space_name or w.space_guid,
                          "offset_m": w.built_m - w.planned_m, "offset_sigma_m": w.sigma_m, "n_keyframes": w.n_keyframes,
@@ -188,9 +187,11 @@ def to_csv(data: DeviationsFile) -> str:
 
 
 def _face_row(f: FaceRecord) -> dict:
-    row = {k: ("" if v is None else v) for k, v in f.model_dump(exclude={"centre"}).items()}
-    centre = f.centre or ("", "", "")
-    return {**row, "centre_x": centre[0], "centre_y": centre[1], "centre_z": centre[2]}
+    return {**{k: ("" if v is None else v) for k, v in f.model_dump(exclude={"centre"}).items()}, **_centre_columns(f.centre)}
+
+
+def _centre_columns(centre: Vec3 | None) -> dict:
+    return dict(zip(("centre_x", "centre_y", "centre_z"), centre or ("", "", "")))
 
 
 def write_deviations(report: DeviationReport, out_dir: Path) -> DeviationsFile:

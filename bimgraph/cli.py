@@ -258,14 +258,17 @@ def view(
 @friendly_errors
 def evaluate(
     outdirs: list[Path] = typer.Argument(..., help="Output folders of `bimgraph run` on the same sequence."),
-    gt: Path = typer.Option(..., "--gt", help="The simulated sequence folder (with groundtruth/)."),
+    gt: Path = typer.Option(..., "--gt", help="The sequence folder, with its reference in groundtruth/: a simulated one's, or T_B_C.tum of one's own (docs/formats.md)."),
     baselines: bool = typer.Option(True, "--baselines/--no-baselines", help="Also measure the seed paper's manual, global and local alignment, with the first run's associations."),
     bim_model: Optional[Path] = typer.Option(None, "--bim", help="IFC model or plane map JSON to measure against; default: the one the runs used (their summary.json names it), else the one the sequence names."),
+    t_max_diff: float = typer.Option(0.01, "--t-max-diff", min=0.0, help="Seconds a reference pose may be from a keyframe's stamp to be its truth (as evo's)."),
     config_file: Optional[Path] = ConfigOption,
 ):
     """Measure runs against ground truth: ATE, RPE, extrinsic, wall errors, association.
 
     The wall errors are the seed paper's; association is precision and recall against the simulator's truth. Writes metrics.json into each output folder.
+
+    A simulated sequence's groundtruth/ has everything. A recording of one's own needs only groundtruth/T_B_C.tum, the reference trajectory in B (a total station's, a motion-capture system's), at its own stamps: each keyframe takes the pose nearest its stamp within --t-max-diff, and keyframes without one are left out of ATE and RPE; with groundtruth/T_B_S.json the extrinsic is measured too. Without the faces behind the planes (observations.jsonl) the wall errors average over the first run's matches and association is not scored.
 
     The last row, "truth", is the ground-truth trajectory measured the same way: the floor of the wall errors that the detections' noise and the as-built deviations leave.
 
@@ -278,15 +281,14 @@ def evaluate(
 
     cfg = load_config(config_file)
     check_runs_of(outdirs, gt)
-    evaluation = Evaluation(gt, cfg, bim_model or model_of_runs(outdirs, gt))
     # every run read, validated and measured before any metrics.json is written
     estimates = {str(d): load_estimate(d) for d in outdirs}
     timings = {str(d): run_timings(d) for d in outdirs}
+    associations = next(iter(estimates.values())).associations
+    evaluation = Evaluation(gt, cfg, bim_model or model_of_runs(outdirs, gt), associations, t_max_diff)
     rows = []
     if baselines:
-        associations = next(iter(estimates.values())).associations
-        methods = ["manual", "global", "local"]
-        for method in methods:
+        for method in ["manual", "global", "local"]:
             rows.append(summary_row(method, evaluation.metrics(evaluation.baseline(method, associations))))
     measured = {out_dir: evaluation.metrics(estimate, out_dir) for out_dir, estimate in estimates.items()}
     total = len(evaluation.sequence.keyframes)
@@ -294,7 +296,7 @@ def evaluate(
         write_metrics(out_dir, metrics)
         stopped = f" (stopped: first {metrics['keyframes']} of {total} keyframes)" if metrics["keyframes"] < total else ""
         rows.append({**summary_row(Path(out_dir).name + stopped, metrics), **timings[out_dir]})
-    rows.append(summary_row("truth", evaluation.metrics(evaluation.truth())))
+    rows.append(summary_row("truth", evaluation.truth_metrics()))
     if baselines:
         manual = rows[0]
         for row in rows[1:]:
@@ -304,7 +306,8 @@ def evaluate(
 
     # (a file or a pipe takes the table at its own width: rich's 80 columns there cut figures)
     terminal = Console()
-    Console(width=max(terminal.width, 120) if terminal.is_terminal else 1000).print(metrics_table(rows))
+    Console(width=max(terminal.width, 120) if terminal.is_terminal else 1000).print(
+        metrics_table(rows, walls_on_truth=evaluation.truth.faces is not None, scored=len(evaluation.truth.T_B_C), total=total))
 
 def main():
     app()

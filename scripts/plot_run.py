@@ -21,6 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bimgraph.backend.pipeline import initial_alignment, load_model, model_path  # noqa: E402
 from bimgraph.backend.results import ASSOCIATIONS, TRAJECTORY_BIM, load_associations  # noqa: E402
 from bimgraph.config import Config, load_config  # noqa: E402
+from bimgraph.evaluation.metrics import T_MAX_DIFF_S  # noqa: E402
 from bimgraph.sequence.format import load_sequence  # noqa: E402
 from bimgraph.sequence.tum import read_tum  # noqa: E402
 from bimgraph.viewer.session import ground_truth  # noqa: E402
@@ -40,7 +41,7 @@ def plot_run(out_dir: Path, seq_dir: Path, png: Path, cfg: Config, bim: Path | N
 
     seq = load_sequence(seq_dir)
     plane_map = load_model(model_path(seq.root, seq.meta, bim), cfg)
-    _, T_B_C = read_tum(Path(out_dir) / TRAJECTORY_BIM)
+    stamps, T_B_C = read_tum(Path(out_dir) / TRAJECTORY_BIM)
     T_B_S0 = initial_alignment(seq.meta, cfg).T_B_S
     raw = np.array([(T_B_S0 @ kf.pose)[:3, 3] for kf in seq.keyframes[:len(T_B_C)]])
     associated = {a.face for a in load_associations(Path(out_dir) / ASSOCIATIONS).associations}
@@ -59,8 +60,9 @@ def plot_run(out_dir: Path, seq_dir: Path, png: Path, cfg: Config, bim: Path | N
         state = "deviating" if face.id in deviating else "associated" if face.id in associated else "unobserved"
         ax.plot(ends[:, 0], ends[:, 1], color=_rgb(colours.colour(state)), linewidth=2.5 if state != "unobserved" else 1.2,
                 solid_capstyle="butt")
-    if truth:
-        gt = np.array([truth[k][:3, 3] for k in sorted(truth)])[:len(T_B_C)]
+    if truth is not None:  # (up to the run's last keyframe: a run stopped early covers a prefix)
+        truth_stamps, truth_poses = truth
+        gt = truth_poses[np.argsort(truth_stamps)][np.sort(truth_stamps) <= stamps[-1] + T_MAX_DIFF_S, :3, 3]
         ax.plot(gt[:, 0], gt[:, 1], color=_rgb(colours.colour_truth), linewidth=1.0, linestyle="--", label="ground truth")
     ax.plot(raw[:, 0], raw[:, 1], color=_rgb(colours.colour_raw), linewidth=1.2, label="front-end, initial alignment")
     ax.plot(T_B_C[:, 0, 3], T_B_C[:, 1, 3], color=_rgb(colours.colour_corrected), linewidth=1.5, label="bimgraph")

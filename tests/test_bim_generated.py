@@ -96,6 +96,14 @@ def test_every_section_knows_its_room(imported):
             ("S1", "Loft")} <= names
 
 
+def test_the_map_names_its_file_and_project(written, imported):
+    """(BCF topics name both, so that BIM tools open them on the right model.)"""
+    import ifcopenshell
+
+    assert imported.source == written.name
+    assert imported.ifc_project == ifcopenshell.open(str(written)).by_type("IfcProject")[0].GlobalId
+
+
 def test_storeys_and_elevations(imported):
     for section in imported.faces:
         storey = section.wall_name[-1]

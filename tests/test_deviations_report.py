@@ -1,6 +1,7 @@
 """deviations.json / .csv round trips and the BCF file re-opened with the BCF library."""
 
 import json
+import zipfile
 
 import numpy as np
 import pytest
@@ -132,3 +133,33 @@ def test_an_earlier_version_loads_without_the_later_fields(written, tmp_path, ve
     (tmp_path / "old.json").write_text(json.dumps(raw))
     old = load_deviations(tmp_path / "old.json")
     assert old.version == version and old.thicknesses == [] and len(old.faces) == 4
+
+
+def test_bcf_names_its_model_and_lists_the_values_it_uses(written, tmp_path):
+    """A BIM tool picks the model a topic is about by the markup's header (it had none), and
+    BCF 3.0 takes topic types and statuses from extensions.xml (it was empty); creation dates
+    are UTC, said so; the project keeps one id from report to report, so they merge."""
+    plane_map, data, _ = written
+    plane_map = plane_map.model_copy(update={"source": "site.ifc", "ifc_project": "3sQBBEGDXPPi$$JO2bKmW$"})
+    ids = []
+    for name in ("a.bcf", "b.bcf"):
+        write_bcf(data, plane_map, tmp_path / name, CFG)
+        with BcfXml.load(tmp_path / name) as bcf:
+            ids.append(bcf.project_info.project.project_id)
+            extensions = bcf.extensions
+            for topic in bcf.topics.values():
+                assert topic.topic.topic_type in extensions.topic_types.topic_type
+                assert topic.topic.topic_status in extensions.topic_statuses.topic_status
+                assert topic.topic.creation_author in extensions.users.user
+                (file,) = topic.header.files.file
+                assert (file.filename, file.ifc_project, file.is_external) == ("site.ifc", "3sQBBEGDXPPi$$JO2bKmW$", True)
+                assert topic.topic.creation_date.offset == 0
+    assert ids[0] == ids[1]
+    with zipfile.ZipFile(tmp_path / "a.bcf") as z:
+        extensions_xml = z.read("extensions.xml").decode()
+    for listed in ("TopicTypes", "TopicStatuses", "Priorities", "TopicLabels", "Users", "SnippetTypes", "Stages"):
+        assert f"<{listed}" in extensions_xml
+    # a hand-written map names no model: no header
+    write_bcf(data, plane_map.model_copy(update={"source": "", "ifc_project": ""}), tmp_path / "c.bcf", CFG)
+    with BcfXml.load(tmp_path / "c.bcf") as bcf:
+        assert all(topic.header is None for topic in bcf.topics.values())

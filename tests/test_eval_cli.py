@@ -124,16 +124,59 @@ def test_malformed_ground_truth_is_one_line_exit_3(finished_run, tmp_path):
     assert_one_line_error(result, 3, "observations.jsonl: line 2: planes: Input should be a valid list")
 
 
-def test_ground_truth_with_only_a_trajectory_names_every_missing_file(finished_run, tmp_path):
-    """A user with a reference trajectory alone learned the files eval needs one at a time."""
-    seq, out = finished_run
-    copy = tmp_path / "seq"
+def reference_only(seq, root, rows, shift_s=0.0, keep=()):
+    """A copy of the sequence whose groundtruth/ holds only `T_B_C.tum`, cut to the poses of
+    `rows`, their stamps moved by `shift_s`, and the ground-truth files in `keep`."""
+    copy = root / "seq"
     shutil.copytree(seq, copy)
     for name in ("T_B_S.json", "observations.jsonl", "as_built.json", "visible.jsonl"):
-        (copy / "groundtruth" / name).unlink()
-    result = CliRunner().invoke(app, ["eval", str(out), "--gt", str(copy), "--no-baselines"])
-    assert_one_line_error(result, 2, "groundtruth: no T_B_S.json, observations.jsonl, as_built.json, visible.jsonl (")
-    assert "evo_ape tum REF.tum OUT/trajectory_bim.tum" in result.output
+        if name not in keep:
+            (copy / "groundtruth" / name).unlink()
+    lines = [line for line in (copy / "groundtruth" / "T_B_C.tum").read_text().splitlines() if not line.startswith("#")]
+    (copy / "groundtruth" / "T_B_C.tum").write_text("".join(
+        f"{float(line.split()[0]) + shift_s:.6f} {line.split(' ', 1)[1]}\n" for line in np.array(lines)[rows]))
+    return copy
+
+
+def test_a_reference_trajectory_alone_is_measured_at_the_keyframes_it_has(finished_run, tmp_path):
+    """A user with a total station's trajectory was told to use evo: eval needed all five of the
+    simulator's files. Now a reference at its own stamps (every third keyframe's, 4 ms late,
+    in reverse order) gives ATE and RPE over those keyframes, wall errors over the run's own
+    matches, and neither extrinsic nor association figures."""
+    seq, run = finished_run
+    full, out = tmp_path / "full", tmp_path / "out"
+    shutil.copytree(run, full)
+    shutil.copytree(run, out)
+    assert CliRunner().invoke(app, ["eval", str(full), "--gt", str(seq), "--no-baselines"]).exit_code == 0
+    whole = json.loads((full / "metrics.json").read_text())
+    rows = np.arange(0, 30, 3)[::-1]
+    copy = reference_only(seq, tmp_path / "own", rows, shift_s=0.004)
+    result = CliRunner().invoke(app, ["eval", str(out), "--gt", str(copy)], terminal_width=200)
+    assert result.exit_code == 0, result.output
+    assert "ATE: over the 10 of 30 keyframes with a reference pose" in result.output
+    assert "wall errors, over the first run's matches" in result.output
+    assert "E cm" not in result.output and "prec." not in result.output
+    part = json.loads((out / "metrics.json").read_text())
+    assert (part["keyframes"], part["keyframes_with_reference"]) == (30, 10)
+    errors = part["per_keyframe"]["translation_error_m"]
+    assert [e is not None for e in errors] == [k % 3 == 0 for k in range(30)]
+    assert errors[::3] == whole["per_keyframe"]["translation_error_m"][::3]
+    assert part["ate_m"] == pytest.approx(np.sqrt(np.mean(np.square(errors[::3]))), abs=1e-12)
+    assert "extrinsic_trans_cm" not in part and "association_precision" not in part
+    assert part["wall_distance_m"] == pytest.approx(whole["wall_distance_m"], rel=0.2)
+    # the viewer draws it too (it took keyframe k's truth from the file's k-th line)
+    result = CliRunner().invoke(app, ["view", str(out), "--sequence", str(copy), "--rrd", str(tmp_path / "x.rrd")])
+    assert result.exit_code == 0, result.output
+    # 4 ms off is too far for a 1 ms tolerance; the true extrinsic, where given, is measured
+    result = CliRunner().invoke(app, ["eval", str(out), "--gt", str(copy), "--no-baselines", "--t-max-diff", "0.001"])
+    assert_one_line_error(result, 2, "no pose of groundtruth/T_B_C.tum within 0.001 s of a keyframe's stamp")
+    copy = reference_only(seq, tmp_path / "with-extrinsic", rows, keep=("T_B_S.json",))
+    assert CliRunner().invoke(app, ["eval", str(out), "--gt", str(copy), "--no-baselines"]).exit_code == 0
+    part = json.loads((out / "metrics.json").read_text())
+    assert part["extrinsic_trans_cm"] == whole["extrinsic_trans_cm"] and part["extrinsic_nees"] == whole["extrinsic_nees"]
+    (copy / "groundtruth" / "T_B_C.tum").unlink()
+    assert_one_line_error(CliRunner().invoke(app, ["eval", str(out), "--gt", str(copy)]), 2,
+                          "groundtruth: no T_B_C.tum (the reference trajectory in B")
 
 
 def test_a_run_stopped_early_is_measured_over_the_keyframes_it_reached(finished_run, tmp_path):

@@ -11,6 +11,7 @@ from bimgraph.evaluation.metrics import (
     extrinsic_error,
     extrinsic_nees,
     mean_wall_errors,
+    nearest_stamps,
     rpe,
     wall_errors,
 )
@@ -163,3 +164,11 @@ def test_a_bad_tum_line_names_its_field(tmp_path, line, message):
     (tmp_path / "t.tum").write_text("0.0 0 0 0 0 0 0 1\n" + line + "\n")
     with pytest.raises(FormatError, match=message):
         read_tum(tmp_path / "t.tum")
+
+
+def test_nearest_stamps_takes_the_nearest_within_the_tolerance_in_any_order():
+    reference = np.array([3.0, 1.0, 2.004, 10.0])
+    rows = nearest_stamps(np.array([1.0, 2.0, 2.5, 3.009, 9.98, 11.0]), reference, 0.01)
+    assert rows.tolist() == [1, 2, -1, 0, -1, -1]
+    assert nearest_stamps(np.array([0.0, 5.0]), np.array([5.005]), 0.01).tolist() == [-1, 0]
+    assert nearest_stamps(np.array([0.0]), np.zeros(0), 0.01).tolist() == [-1]

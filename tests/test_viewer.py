@@ -73,7 +73,7 @@ def scene():
 
 def record_online(scene, path, config=None):
     viewer = RerunViewer(open_recording(path), scene.plane_map, scene.initial.T_B_S, camera=CAMERA,
-                         T_B_C_truth=dict(enumerate(scene.T_B_C)), T_B_S_truth=scene.T_B_S, config=config)
+                         T_B_C_truth=(np.array([kf.stamp for kf in scene.keyframes]), np.asarray(scene.T_B_C)), T_B_S_truth=scene.T_B_S, config=config)
     listener = RerunListener(viewer)
     backend = Backend(scene.plane_map, BackendConfig(), scene.initial, listener=listener)
     results = [backend.process(kf) for kf in scene.keyframes]

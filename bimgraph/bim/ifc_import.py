@@ -96,7 +96,9 @@ def import_ifc(path, cfg: BimImportConfig, log=None, progress=None):
         slab_sections, skipped["slabs skipped"] = _slab_faces(reader, slabs, face_ids, cfg, log)
         sections += slab_sections
     T_W_B = None if np.allclose(reader.T_W_B, np.eye(4)) else tuple(pose_to_tum(reader.T_W_B))
-    plane_map = PlaneMap(source=path.name, origin=ORIGIN, T_W_B=T_W_B, faces=sections)
+    projects = model.by_type("IfcProject")
+    plane_map = PlaneMap(source=path.name, ifc_project=(projects[0].GlobalId or "") if projects else "", origin=ORIGIN, T_W_B=T_W_B,
+                         faces=sections)
     seconds = time.perf_counter() - started
     return plane_map, _report(path, walls, skipped, curtain_walls, wall_faces, sections, seconds)
 

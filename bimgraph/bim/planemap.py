@@ -151,6 +151,9 @@ class PlaneMap(BaseModel):
     format: Literal["bimgraph.planemap"] = FORMAT
     version: Literal[1] = VERSION
     source: str = ""
+    # The IfcProject's GlobalId, which BCF files name beside `source` so that BIM tools open
+    # their topics on the right model; empty where unknown (a hand-written map).
+    ifc_project: str = ""
     # Free text for people: what frame B is (the importer says; a hand-written map may too).
     origin: str = "as the author of the map chose: metres, z up"
     # Where B sits in the IFC file's world frame, so that results can go back into the model

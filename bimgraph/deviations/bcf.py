@@ -7,6 +7,7 @@ one per room width off plan, naming its two walls, and one per wall thickness of
 
 from __future__ import annotations
 
+import datetime
 import uuid
 from pathlib import Path
 
@@ -15,6 +16,7 @@ from bcf.geometry import camera_vectors_from_target_position
 from bcf.v3 import model as mdl
 from bcf.v3.bcfxml import BcfXml
 from bcf.v3.visinfo import VisualizationInfoHandler, build_camera_from_vectors, build_components
+from xsdata.models.datatype import XmlDateTime
 
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import DeviationConfig
@@ -56,6 +58,30 @@ def _describe_distance(subject: str, record, more: str, less: str, cfg: Deviatio
             f"(tolerance +/-{cfg.tolerance_m * 100:.1f} cm). Seen in {record.n_keyframes} keyframes or more.")
 
 
+# the topic type and statuses of every topic, which BCF 3.0 wants listed in extensions.xml
+_TYPE = "Issue"
+_STATUSES = ["Open", "Closed"]
+
+
+def _extensions(author: str) -> mdl.Extensions:
+    """extensions.xml: the values the topics use, every list present (buildingSMART's schema
+    wants all seven, empty or not)."""
+    return mdl.Extensions(topic_types=mdl.ExtensionsTopicTypes(topic_type=[_TYPE]),
+                          topic_statuses=mdl.ExtensionsTopicStatuses(topic_status=_STATUSES),
+                          priorities=mdl.ExtensionsPriorities(), topic_labels=mdl.ExtensionsTopicLabels(),
+                          users=mdl.ExtensionsUsers(user=[author]), snippet_types=mdl.ExtensionsSnippetTypes(),
+                          stages=mdl.ExtensionsStages())
+
+
+def _header(plane_map: PlaneMap) -> mdl.Header | None:
+    """The model a topic is about (its file and IfcProject), by which BIM tools pick the model
+    to open it on; None for a map that names neither (hand-written)."""
+    if not plane_map.source and not plane_map.ifc_project:
+        return None
+    return mdl.Header(files=mdl.HeaderFiles(file=[mdl.File(filename=plane_map.source or None, ifc_project=plane_map.ifc_project or None,
+                                                           is_external=True)]))
+
+
 def write_bcf(deviations: DeviationsFile, plane_map: PlaneMap, path: Path, cfg: DeviationConfig,
               project_name: str = "bimgraph as-built deviations") -> int:
     """Write the BCF 3.0 file; returns the number of topics: one per deviating face, one for a
@@ -64,11 +90,17 @@ def write_bcf(deviations: DeviationsFile, plane_map: PlaneMap, path: Path, cfg: 
     faces = plane_map.index
     # viewpoints are in the IFC file's world frame, in metres: B's pose in it, if B is not it
     T_W_B = np.eye(4) if plane_map.T_W_B is None else pose_from_tum(plane_map.T_W_B)
-    bcf = BcfXml.create_new(project_name)
+    bcf = BcfXml.create_new(project_name, extensions=_extensions(cfg.bcf_author))
+    # the same project's reports merge into one project of a BIM tool, whose ids BCF keeps
+    bcf.project_info.project.project_id = str(uuid.uuid5(uuid.NAMESPACE_URL, f"bimgraph:{plane_map.ifc_project or plane_map.source}"))
+    created = XmlDateTime.from_datetime(datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0))
+    header = _header(plane_map)
 
     def add_topic(title: str, description: str, face_id: str, guids: list[str]) -> None:
         face = plane_map.faces[faces[face_id]]
-        topic = bcf.add_topic(title, description, cfg.bcf_author, topic_type="Issue", topic_status="Open")
+        topic = bcf.add_topic(title, description, cfg.bcf_author, topic_type=_TYPE, topic_status=_STATUSES[0])
+        topic.topic.creation_date = created  # (bcf-client's is local time without a zone, which BCF reads as UTC)
+        topic.header = header
         # Look at the face from inside its room, from half a metre above the point looked at.
         camera_B, target_B = viewpoint(plane_map, face, cfg.bcf_view_distance_m, 0.5)
         target_W = T_W_B[:3, :3] @ target_B + T_W_B[:3, 3]
@@ -88,7 +120,8 @@ def write_bcf(deviations: DeviationsFile, plane_map: PlaneMap, path: Path, cfg: 
                   contested[0].face_id, list(dict.fromkeys(f.wall_guid for f in contested)))
     for width in (w for w in deviations.widths if w.status == "deviating"):
         room = width.space_name or width.space_guid
-        add_topic(f"Room width off plan: {room}", _describe_distance(f"Room {room}", width, "wider", "narrower", cfg),
+        walls = " and ".join(dict.fromkeys(plane_map.faces[faces[face]].wall_name or face for face in width.faces))
+        add_topic(f"Room width off plan: {room}, between {walls}", _describe_distance(f"Room {room}", width, "wider", "narrower", cfg),
                   width.faces[0], list(dict.fromkeys(plane_map.faces[faces[face]].wall_guid for face in width.faces)))
     for thickness in (t for t in deviations.thicknesses if t.status == "deviating"):
         wall = thickness.wall_name or thickness.wall_guid

@@ -18,7 +18,8 @@ import numpy as np
 from bimgraph.backend.alignment import Alignment, unobservable_directions
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import BackendConfig, BaselineConfig
-from bimgraph.geometry import least_rotation, make_pose, normalise_plane, plane_from_frame, rotation_from_correlation
+from bimgraph.evaluation.evaluate import wall_matches
+from bimgraph.geometry import least_rotation, make_pose, plane_from_frame, rotation_from_correlation
 from bimgraph.sequence.format import Keyframe
 
 METHODS = ("manual", "global", "local")
@@ -37,20 +38,13 @@ class MatchedPlane:
 def matched_planes(keyframes: Sequence[Keyframe], associations: Mapping[tuple[int, int], str],
                    plane_map: PlaneMap) -> list[list[MatchedPlane]]:
     """Per keyframe (in order), its observations that `associations` matched to a face."""
-    out = []
-    for kf in keyframes:
-        T_S_C = kf.pose
-        row = []
-        for i, obs in enumerate(kf.planes):
-            face = associations.get((kf.index, i))
-            if face is None or face not in plane_map.index:
-                continue
-            plane_C = normalise_plane(obs.plane)
-            centre_C = np.asarray(obs.centre) if obs.centre is not None else -plane_C[3] * plane_C[:3]
-            row.append(MatchedPlane(kf.index, plane_from_frame(plane_C, T_S_C), T_S_C[:3, :3] @ centre_C + T_S_C[:3, 3],
-                                    plane_map.faces[plane_map.index[face]].plane))
-        out.append(row)
-    return out
+    T_S_C = {kf.index: kf.pose for kf in keyframes}
+    out: dict[int, list[MatchedPlane]] = {kf.index: [] for kf in keyframes}
+    for m in wall_matches(keyframes, associations, plane_map):
+        R_S_C, t_S_C = T_S_C[m.keyframe][:3, :3], T_S_C[m.keyframe][:3, 3]
+        out[m.keyframe].append(MatchedPlane(m.keyframe, plane_from_frame(m.plane_C, T_S_C[m.keyframe]),
+                                            R_S_C @ m.centre_C + t_S_C, m.face_B))
+    return list(out.values())
 
 
 class PlaneRegistration:

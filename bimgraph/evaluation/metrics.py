@@ -1,7 +1,8 @@
 """Metric definitions shared by every script (DESIGN.md, "Metrics"). Pure numpy, no I/O.
 
-Trajectories are sequences of 4x4 poses `T_B_C` matched index by index with ground truth;
-B is absolute, so nothing is re-aligned.
+Trajectories are sequences of 4x4 poses `T_B_C` matched index by index with ground truth
+(a reference at stamps of its own is matched first: `nearest_stamps`); B is absolute, so
+nothing is re-aligned.
 """
 
 from __future__ import annotations
@@ -13,6 +14,22 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from bimgraph.geometry import inverse, normal_angle_deg, plane_from_frame, point_plane_distance, rotation_angle_deg
+
+# seconds a reference pose may be from an estimate's stamp to be its truth (evo's default `--t_max_diff`)
+T_MAX_DIFF_S = 0.01
+
+
+def nearest_stamps(stamps: np.ndarray, reference: np.ndarray, max_diff_s: float) -> np.ndarray:
+    """For each of `stamps`, the row of the nearest of `reference` (any order) within
+    `max_diff_s` seconds, else -1 (evo's association by `--t_max_diff`)."""
+    order = np.argsort(reference, kind="stable")
+    ref = np.asarray(reference, dtype=float)[order]
+    if len(ref) == 0:
+        return np.full(len(stamps), -1)
+    right = np.clip(np.searchsorted(ref, stamps), 0, len(ref) - 1)
+    left = np.maximum(right - 1, 0)
+    nearer = np.where(np.abs(ref[left] - stamps) <= np.abs(ref[right] - stamps), left, right)
+    return np.where(np.abs(ref[nearer] - stamps) <= max_diff_s, order[nearer], -1)
 
 
 def _stack(poses) -> np.ndarray:

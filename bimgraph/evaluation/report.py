@@ -27,15 +27,22 @@ def _cell(fmt: str, value) -> str:
     return fmt.format(value)
 
 
-def metrics_table(rows: list[dict]):
+def metrics_table(rows: list[dict], walls_on_truth: bool = True, scored: int | None = None, total: int | None = None):
+    """The rows (`runs.summary_row`) as a table, its caption a legend of the columns shown.
+    `walls_on_truth`: whether the wall errors average over the planes truly of a face (else
+    over the first run's matches); `scored` of `total` keyframes had a reference pose."""
     from rich.table import Table
 
     present = [c for c in COLUMNS if any(c[0] in r for r in rows)]
+    shown = {key for key, _, _ in present}
     # (the legend of the columns shown: without baselines there is no reduction against manual)
-    legend = ["E: extrinsic T_B_S error (NEES: of its heading and horizontal position against its covariance, "
-              "3 on average where that is honest)", "wall: the paper's wall errors",
-              "-%: reduction against manual" if any("wall_angle_reduction_pct" in r for r in rows) else None,
-              "prec./recall: association against ground truth", "ms/kf: median online latency per keyframe",
+    legend = [f"ATE: over the {scored} of {total} keyframes with a reference pose" if scored != total else None,
+              "E: extrinsic T_B_S error (NEES: of its heading and horizontal position against its covariance, "
+              "3 on average where that is honest)" if "extrinsic_rot_deg" in shown else None,
+              "wall: the paper's wall errors" + ("" if walls_on_truth else ", over the first run's matches"),
+              "-%: reduction against manual" if "wall_angle_reduction_pct" in shown else None,
+              "prec./recall: association against ground truth" if "association_precision" in shown else None,
+              "ms/kf: median online latency per keyframe" if "latency_median_ms" in shown else None,
               "truth: the ground truth measured alike"]
     table = Table(title="bimgraph evaluation", caption="; ".join(item for item in legend if item))
     # (a figure is never cut: where the width is short, the method's name folds)

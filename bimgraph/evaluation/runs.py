@@ -1,11 +1,12 @@
-"""Evaluation from files: a run's output folder and a simulated sequence in, `metrics.json`
-and a table out. The I/O side of `evaluate` and `baselines`; and what a run's folder says
+"""Evaluation from files: a run's output folder and a sequence with its reference in,
+`metrics.json` and a table out. The I/O side of `evaluate` and `baselines`; and what a run's folder says
 without ground truth (`run_summary`, printed by `bimgraph run`)."""
 
 from __future__ import annotations
 
 import filecmp
 from collections import Counter
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -17,12 +18,12 @@ from bimgraph.config import Config
 from bimgraph.deviations.report import FACE_STATUSES, WIDTH_STATUSES, run_report
 from bimgraph.errors import FormatError, InputError
 from bimgraph.evaluation.baselines import estimate_extrinsics, matched_planes
-from bimgraph.evaluation.evaluate import Estimate, evaluate
+from bimgraph.evaluation.evaluate import Estimate, Truth, evaluate, wall_matches
+from bimgraph.evaluation.metrics import T_MAX_DIFF_S, nearest_stamps
 from bimgraph.files import write_json
 from bimgraph.geometry import pose_from_tum, sigmas_in_B
 from bimgraph.sequence.format import KEYFRAMES_FILE, Sequence, load_sequence
-from bimgraph.sequence.groundtruth import GroundTruth, load_groundtruth
-
+from bimgraph.sequence.groundtruth import load_reference
 
 
 def load_estimate(out_dir: Path) -> Estimate:
@@ -72,23 +73,40 @@ def model_of_runs(out_dirs, seq_dir: Path) -> Path | None:
 
 
 class Evaluation:
-    """A simulated sequence loaded once, against which any number of methods are measured."""
+    """A sequence and its reference loaded once, against which any number of methods are
+    measured."""
 
-    def __init__(self, seq_dir: Path, cfg: Config, model: Path | None = None):
-        """`model`: the BIM model the runs used (default: the one the sequence names)."""
+    def __init__(self, seq_dir: Path, cfg: Config, model: Path | None = None,
+                 associations: Mapping[tuple[int, int], str] | None = None, t_max_diff_s: float = T_MAX_DIFF_S):
+        """`model`: the BIM model the runs used (default: the one the sequence names).
+        `associations`: where the reference names no face behind the planes, the matches the
+        wall errors average over (a run's). `t_max_diff_s`: how far from a keyframe's stamp
+        a reference pose may be (evo's `--t_max_diff`)."""
         self.cfg = cfg
         self.sequence: Sequence = load_sequence(seq_dir)
-        self.gt: GroundTruth = load_groundtruth(seq_dir)
-        if len(self.gt.T_B_C) != len(self.sequence.keyframes):
-            raise FormatError(f"{seq_dir}: ground truth has {len(self.gt.T_B_C)} poses for {len(self.sequence.keyframes)} keyframes")
-        for kf, truths in zip(self.sequence.keyframes, self.gt.observations):
-            if len(truths) != len(kf.planes):  # (the association's precision and recall would count the wrong planes)
-                raise FormatError(f"{seq_dir}: groundtruth/observations.jsonl has {len(truths)} planes for keyframe {kf.index}, "
-                                  f"keyframes.jsonl {len(kf.planes)}")
+        keyframes = self.sequence.keyframes
+        reference = load_reference(seq_dir)
+        rows = nearest_stamps(np.array([kf.stamp for kf in keyframes]), reference.stamps, t_max_diff_s)
+        if (rows < 0).all():
+            raise InputError(f"{seq_dir}: no pose of groundtruth/T_B_C.tum within {t_max_diff_s:g} s of a keyframe's stamp "
+                             f"(its stamps {_span(reference.stamps)}, the keyframes' {_span([kf.stamp for kf in keyframes])})")
+        faces = None
+        if reference.observations is not None:
+            if len(reference.observations) != len(keyframes):
+                raise FormatError(f"{seq_dir}: groundtruth/observations.jsonl has {len(reference.observations)} keyframes, "
+                                  f"keyframes.jsonl {len(keyframes)}")
+            for kf, truths in zip(keyframes, reference.observations):
+                if len(truths) != len(kf.planes):  # (the association's precision and recall would count the wrong planes)
+                    raise FormatError(f"{seq_dir}: groundtruth/observations.jsonl has {len(truths)} planes for keyframe {kf.index}, "
+                                      f"keyframes.jsonl {len(kf.planes)}")
+            faces = {(kf.index, i): obs.get("face_id") for kf, planes in zip(keyframes, reference.observations)
+                     for i, obs in enumerate(planes)}
         self.plane_map = load_model(model or model_path(seq_dir, self.sequence.meta, None), cfg)
+        self.truth = Truth({kf.index: reference.T_B_C[r] for kf, r in zip(keyframes, rows) if r >= 0}, reference.T_B_S, faces,
+                           wall_matches(keyframes, faces if faces is not None else associations or {}, self.plane_map))
         self.manual = initial_alignment(self.sequence.meta, cfg)
         # every (keyframe, plane) the sequence has, which an association may name
-        self._observed = {(kf.index, i) for kf in self.sequence.keyframes for i in range(len(kf.planes))}
+        self._observed = {(kf.index, i) for kf in keyframes for i in range(len(kf.planes))}
 
     def metrics(self, estimate: Estimate, name: str = "the run") -> dict:
         """Every metric of `estimate`; one of an online run that stopped early (its stamps
@@ -104,12 +122,14 @@ class Evaluation:
                 raise FormatError(f"{name}: associations name plane {i} of keyframe {k}, which {self.sequence.root} does not have")
             if face is not None and face not in self.plane_map.index:
                 raise FormatError(f"{name}: associations name face {face!r}, which the plane map does not have")
-        return evaluate(estimate, keyframes[:n], self.gt.first(n), self.plane_map)
+        return evaluate(estimate, keyframes[:n], self.truth)
 
-    def truth(self) -> Estimate:
-        """The ground truth as if it were a method: its wall errors are the floor that the
-        detections' noise and the as-built deviations leave to every method."""
-        return Estimate(list(self.gt.T_B_C), self.gt.T_B_S, None)
+    def truth_metrics(self) -> dict:
+        """The reference measured as if it were a method, over the keyframes it has a pose
+        for: its wall errors are the floor that the detections' noise and the as-built
+        deviations leave to every method."""
+        keyframes = [kf for kf in self.sequence.keyframes if kf.index in self.truth.T_B_C]
+        return evaluate(Estimate([self.truth.T_B_C[kf.index] for kf in keyframes], self.truth.T_B_S), keyframes, self.truth)
 
     def baseline(self, method: str, associations) -> Estimate:
         """The paper's `method` on this sequence, with the given associations."""
@@ -118,6 +138,10 @@ class Evaluation:
         T_B_S = estimate_extrinsics(method, keyframes, matches, self.manual, self.cfg.backend, self.cfg.baselines)
         T_B_C = [T @ kf.pose for T, kf in zip(T_B_S, keyframes)]
         return Estimate(T_B_C, T_B_S[-1], associations)
+
+
+def _span(stamps) -> str:
+    return f"{min(stamps, default=np.nan):.3f}-{max(stamps, default=np.nan):.3f} s" if len(stamps) else "none"
 
 
 def run_timings(out_dir: Path) -> dict:

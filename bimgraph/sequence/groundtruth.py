@@ -125,20 +125,58 @@ def _read_jsonl(path: Path, model: type[BaseModel]) -> list[dict]:
 
 def load_groundtruth(root: Path) -> GroundTruth:
     """Read `root/groundtruth/`; a FormatError names the file and what is inconsistent."""
-    folder = Path(root) / FOLDER
-    if not folder.is_dir():
-        raise InputError(f"{root}: no {FOLDER}/ folder (not a simulated sequence)")
+    folder = _folder(root, "not a simulated sequence")
     if missing := [name for name in _FILES if not (folder / name).is_file()]:
-        # (named one at a time, a user with a reference trajectory learned the list by trial)
-        raise InputError(f"{folder}: no {', '.join(missing)} (the simulator writes all of {', '.join(_FILES)}; for a "
-                         f"reference trajectory alone, evo reads ours: evo_ape tum REF.tum OUT/trajectory_bim.tum)")
+        raise InputError(f"{folder}: no {', '.join(missing)} (the simulator writes all of {', '.join(_FILES)})")
     stamps, T_B_C = read_tum(folder / TRAJECTORY_FILE)
-    extrinsic = read_json(folder / EXTRINSIC_FILE)
-    T_B_S = pose_from_tum(parse_model(_Extrinsic, extrinsic, str(folder / EXTRINSIC_FILE)).T_B_S)
-    del extrinsic["T_B_S"]
-    observations = [r["planes"] for r in _read_jsonl(folder / OBSERVATIONS_FILE, _Observations)]
+    T_B_S, extrinsic = _read_extrinsic(folder)
+    observations = _read_observations(folder)
     visible = _read_jsonl(folder / VISIBLE_FILE, _Visible)
     for name, records in [(OBSERVATIONS_FILE, observations), (VISIBLE_FILE, visible)]:
         if len(records) != len(stamps):
             raise FormatError(f"{folder / name}: {len(records)} keyframes, {TRAJECTORY_FILE} has {len(stamps)}")
     return GroundTruth(stamps, T_B_C, T_B_S, extrinsic, observations, read_json(folder / AS_BUILT_FILE), visible)
+
+
+@dataclass
+class Reference:
+    """What `bimgraph eval` measures against: true camera poses in B at stamps of their own
+    (a simulator's at every keyframe; a total station's or a motion-capture system's at its
+    own rate), and where known the true extrinsic and, per keyframe, the BIM face behind each
+    detected plane."""
+
+    stamps: np.ndarray  # N
+    T_B_C: np.ndarray  # N x 4 x 4
+    T_B_S: np.ndarray | None  # 4 x 4
+    observations: list[list[dict]] | None  # per keyframe of the sequence, per plane: face_id, ...
+
+
+def load_reference(root: Path) -> Reference:
+    """Read what `root/groundtruth/` holds of a reference: `T_B_C.tum` (required), and
+    `T_B_S.json` and `observations.jsonl` where present."""
+    folder = _folder(root, f"put the reference trajectory in B at {FOLDER}/{TRAJECTORY_FILE}")
+    if not (folder / TRAJECTORY_FILE).is_file():
+        raise InputError(f"{folder}: no {TRAJECTORY_FILE} (the reference trajectory in B, TUM: docs/formats.md, Ground truth)")
+    stamps, T_B_C = read_tum(folder / TRAJECTORY_FILE)
+    return Reference(stamps, T_B_C, _read_extrinsic(folder)[0] if (folder / EXTRINSIC_FILE).is_file() else None,
+                     _read_observations(folder) if (folder / OBSERVATIONS_FILE).is_file() else None)
+
+
+def _folder(root: Path, missing: str) -> Path:
+    """`root/groundtruth/`; an InputError, ending in `missing`, where there is none."""
+    folder = Path(root) / FOLDER
+    if not folder.is_dir():
+        raise InputError(f"{root}: no {FOLDER}/ folder ({missing})")
+    return folder
+
+
+def _read_extrinsic(folder: Path) -> tuple[np.ndarray, dict]:
+    """The true `T_B_S` of `T_B_S.json`, and the rest of the file as read."""
+    extrinsic = read_json(folder / EXTRINSIC_FILE)
+    T_B_S = pose_from_tum(parse_model(_Extrinsic, extrinsic, str(folder / EXTRINSIC_FILE)).T_B_S)
+    del extrinsic["T_B_S"]
+    return T_B_S, extrinsic
+
+
+def _read_observations(folder: Path) -> list[list[dict]]:
+    return [r["planes"] for r in _read_jsonl(folder / OBSERVATIONS_FILE, _Observations)]

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import time
 from collections import defaultdict
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -27,6 +27,7 @@ import numpy as np
 
 from bimgraph.bim.planemap import PlaneMap
 from bimgraph.config import ViewerConfig
+from bimgraph.evaluation.metrics import T_MAX_DIFF_S, nearest_stamps
 from bimgraph.geometry import sigmas_in_B
 from bimgraph.sequence.format import Camera, PlaneObservation
 from bimgraph.viewer import blueprint as bp
@@ -72,13 +73,14 @@ class RerunViewer:
     """Logs a run into a Rerun recording stream (see `bimgraph.viewer.recording.open_recording`).
 
     `T_B_S_initial` is the initial (manual) alignment that maps the raw front-end trajectory
-    into B. `T_B_C_truth` (keyframe index -> pose) and `T_B_S_truth` turn on the error
-    series and the ground-truth trail. Call `keyframe` once per keyframe in order,
+    into B. `T_B_C_truth` (a reference trajectory's stamps and poses: each keyframe takes the
+    one nearest its stamp, `nearest_stamps`) and `T_B_S_truth` turn on the error series and
+    the ground-truth trail. Call `keyframe` once per keyframe in order,
     `set_face_state` when the backend's belief about a face changes, and `close` at the end.
     """
 
     def __init__(self, recording, plane_map: PlaneMap, T_B_S_initial: np.ndarray, *, camera: Camera | None = None,
-                 T_B_C_truth: Mapping[int, np.ndarray] | None = None, T_B_S_truth: np.ndarray | None = None,
+                 T_B_C_truth: tuple[np.ndarray, np.ndarray] | None = None, T_B_S_truth: np.ndarray | None = None,
                  config: ViewerConfig | None = None):
         import rerun as rr
 
@@ -87,7 +89,7 @@ class RerunViewer:
         self.cfg = config or ViewerConfig()
         self.plane_map = plane_map
         self.T_B_S_initial = np.asarray(T_B_S_initial, dtype=float)
-        self.T_B_C_truth = T_B_C_truth or {}
+        self.T_B_C_truth = T_B_C_truth or (np.zeros(0), np.zeros((0, 4, 4)))
         self.T_B_S_truth = None if T_B_S_truth is None else np.asarray(T_B_S_truth, dtype=float)
         self.camera = camera
 
@@ -129,7 +131,7 @@ class RerunViewer:
             log(bp.IMAGE, rr.Pinhole(image_from_camera=cam.K, resolution=[cam.width, cam.height],
                                      camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=cfg.frustum_m), static=True)
         trails = [(bp.RAW, cfg.colour_raw), (bp.CORRECTED, cfg.colour_corrected)]
-        if self.T_B_C_truth:
+        if len(self.T_B_C_truth[0]):
             trails.append((bp.TRUTH, cfg.colour_truth))
             for name, colour in (("corrected", cfg.colour_corrected), ("raw", cfg.colour_raw)):
                 log(f"{bp.METRICS}/position_error_cm/{name}", rr.SeriesLines(colors=[colour], names=[name]), static=True)
@@ -301,9 +303,11 @@ class RerunViewer:
 
         # The definitions of bimgraph.evaluation.metrics (translation error; extrinsic error
         # at the origin of S), vectorised: its per-pose scipy rotation costs ~200 us each.
-        known = np.array([i in self.T_B_C_truth for i in index])
+        truth_stamps, truth_poses = self.T_B_C_truth
+        rows = nearest_stamps(stamp, truth_stamps, T_MAX_DIFF_S)
+        known = rows >= 0
         if known.any():
-            truth = np.stack([self.T_B_C_truth[i] for i in index[known]])
+            truth = truth_poses[rows[known]]
             self._send_trail(bp.TRUTH, index[known], stamp[known], truth[:, :3, 3])
             for name, estimate in (("corrected", T_B_C), ("raw", T_B_C_raw)):
                 self._scalars(f"position_error_cm/{name}", index[known], stamp[known],

@@ -19,16 +19,15 @@ from bimgraph.viewer.recording import open_recording, prepare_target
 from bimgraph.viewer.rerun_viewer import RerunViewer
 
 
-def ground_truth(seq_dir: Path) -> tuple[dict[int, np.ndarray], np.ndarray | None]:
-    """`T_B_C` by keyframe index and `T_B_S` of a simulated sequence, or ({}, None). The
-    ground-truth trajectory has one pose per keyframe in file order; as the backend's
-    oracle does, keyframe k is the k-th line."""
-    from bimgraph.sequence.groundtruth import FOLDER, load_groundtruth
+def ground_truth(seq_dir: Path) -> tuple[tuple[np.ndarray, np.ndarray] | None, np.ndarray | None]:
+    """The reference trajectory's stamps and `T_B_C` poses and the true `T_B_S`, of a
+    sequence whose groundtruth/ has them (`load_reference`; None for what it lacks)."""
+    from bimgraph.sequence.groundtruth import FOLDER, load_reference
 
     if not (Path(seq_dir) / FOLDER).is_dir():
-        return {}, None
-    gt = load_groundtruth(seq_dir)
-    return dict(enumerate(gt.T_B_C)), gt.T_B_S
+        return None, None
+    reference = load_reference(seq_dir)
+    return (reference.stamps, reference.T_B_C), reference.T_B_S
 
 
 def partial(rrd: Path) -> Path:

@@ -571,3 +571,22 @@ def test_the_python_api_gives_the_deviation_report_a_run_writes(world, tmp_path)
                               cfg.deviations, results.rival_alignment)
     written = load_deviations(tmp_path / "deviations.json")
     assert written.faces and to_file(report).model_dump() == written.model_dump()
+
+
+@pytest.mark.slow
+def test_a_model_that_does_not_fit_the_walk_is_warned_about(tmp_path):
+    """A run against the wrong model ends as any other (6 of 65 landmarks matched on the
+    sixth review's); the large walls seen long, most of which a fitting model matches, say so."""
+    seq = tmp_path / "seq"
+    assert CliRunner().invoke(app, ["simulate", "-o", str(seq), "--scenario", "office", "-n", "80", "--seed", "4"]).exit_code == 0
+    assert CliRunner().invoke(app, ["bim", str(seq / "model.ifc"), "-o", str(tmp_path / "planes.json")]).exit_code == 0
+    plane_map = load_model(tmp_path / "planes.json", Config())
+    moved = [face.model_copy(update={"polygon": [(x + 1.5, y + 1.5, z) for x, y, z in face.polygon],
+                                     "holes": [[(x + 1.5, y + 1.5, z) for x, y, z in h] for h in face.holes],
+                                     "offset": face.offset - 1.5 * (face.normal[0] + face.normal[1]), "area": None, "centre": None})
+             for face in plane_map.faces]
+    save_plane_map(plane_map.model_copy(update={"faces": moved}), tmp_path / "moved.json")
+    for bim, warned in [(tmp_path / "planes.json", False), (tmp_path / "moved.json", True)]:
+        result = run(seq, "-o", tmp_path / bim.stem, "--bim", bim)
+        assert result.exit_code == 0, result.output
+        assert ("large vertical planes seen in 10 keyframes or more matched a BIM face" in result.output) == warned

@@ -12,6 +12,7 @@ import numpy as np
 
 from bimgraph.backend.alignment import Alignment, align_from_seeds, seeded_start
 from bimgraph.backend.depth_tilt import DepthTilt
+from bimgraph.backend.fit import unfitting_model
 from bimgraph.backend.graph import BatchSolver, singular_as_error
 from bimgraph.backend.offline import OfflineEstimator, run_offline
 from bimgraph.backend.online import Backend
@@ -241,6 +242,7 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
     if mode == "offline":
         start = time.perf_counter()
         results = run_offline(sequence.keyframes, plane_map, cfg.backend, initial, listener, truth, depth_tilt(meta, cfg))
+        _warn_unfitting(results.landmarks, results.T_B_S, inputs.model, log)
         # as online: every other output first, `finished` once the report is written too
         write_results(out_dir, results, named, finished=False)
         report_start = time.perf_counter()
@@ -268,6 +270,7 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
     # changes the backend's landmarks); `finished` once the report is written too
     writer.snapshot(backend, finished=False, timings={"total_s": time.perf_counter() - start})
     writer.close()
+    _warn_unfitting(backend.landmarks.current(), writer.last.T_B_S, inputs.model, log)
     if stage is not None:  # (about as long as offline rounds: seconds to a minute)
         stage("measuring the walls")
     report_start = time.perf_counter()
@@ -276,6 +279,11 @@ def run(seq_dir: Path, out_dir: Path, mode: str = "online", bim: Path | None = N
     writer.finish({"deviation_report_s": time.perf_counter() - report_start, "total_s": time.perf_counter() - start},
                   basis.challenge)
     return None
+
+
+def _warn_unfitting(landmarks, T_B_S: np.ndarray, model: Path, log) -> None:
+    if log is not None and (warning := unfitting_model(landmarks, T_B_S)) is not None:
+        log(f"warning: {model}: {warning}")
 
 
 @dataclass(frozen=True)

@@ -262,6 +262,7 @@ def evaluate(
     baselines: bool = typer.Option(True, "--baselines/--no-baselines", help="Also measure the seed paper's manual, global and local alignment, with the first run's associations."),
     bim_model: Optional[Path] = typer.Option(None, "--bim", help="IFC model or plane map JSON to measure against; default: the one the runs used (their summary.json names it), else the one the sequence names."),
     t_max_diff: float = typer.Option(0.01, "--t-max-diff", min=0.0, help="Seconds a reference pose may be from a keyframe's stamp to be its truth (as evo's)."),
+    walls: Optional[Path] = typer.Option(None, "--walls", help="Walls measured on site, a CSV (face_id,offset_m[,tilt_deg][,built]): score each run's deviation report against them (docs/formats.md)."),
     config_file: Optional[Path] = ConfigOption,
 ):
     """Measure runs against ground truth: ATE, RPE, extrinsic, wall errors, association.
@@ -269,6 +270,8 @@ def evaluate(
     The wall errors are the seed paper's; association is precision and recall against the simulator's truth. Writes metrics.json into each output folder.
 
     A simulated sequence's groundtruth/ has everything. A recording of one's own needs only groundtruth/T_B_C.tum, the reference trajectory in B (a total station's, a motion-capture system's), at its own stamps: each keyframe takes the pose nearest its stamp within --t-max-diff, and keyframes without one are left out of ATE and RPE; with groundtruth/T_B_S.json the extrinsic is measured too. Without the faces behind the planes (observations.jsonl) the wall errors average over the first run's matches and association is not scored.
+
+    With --walls, each run's deviation report is scored against walls measured on site: detection of the walls off plan beyond the report's tolerance, and the offsets' errors.
 
     The last row, "truth", is the ground-truth trajectory measured the same way: the floor of the wall errors that the detections' noise and the as-built deviations leave.
 
@@ -286,11 +289,23 @@ def evaluate(
     timings = {str(d): run_timings(d) for d in outdirs}
     associations = next(iter(estimates.values())).associations
     evaluation = Evaluation(gt, cfg, bim_model or model_of_runs(outdirs, gt), associations, t_max_diff)
+    measured_walls = None
+    if walls is not None:
+        from bimgraph.evaluation.walls import load_measured_walls
+
+        measured_walls = load_measured_walls(walls, evaluation.plane_map.index)
     rows = []
     if baselines:
         for method in ["manual", "global", "local"]:
             rows.append(summary_row(method, evaluation.metrics(evaluation.baseline(method, associations))))
     measured = {out_dir: evaluation.metrics(estimate, out_dir) for out_dir, estimate in estimates.items()}
+    wall_lines = []
+    if measured_walls is not None:
+        from bimgraph.evaluation.runs import wall_scores
+
+        for out_dir, metrics in measured.items():
+            metrics["walls_measured"], line = wall_scores(Path(out_dir), measured_walls)
+            wall_lines.append(f"{Path(out_dir).name}: {line}")
     total = len(evaluation.sequence.keyframes)
     for out_dir, metrics in measured.items():
         write_metrics(out_dir, metrics)
@@ -308,6 +323,8 @@ def evaluate(
     terminal = Console()
     Console(width=max(terminal.width, 120) if terminal.is_terminal else 1000).print(
         metrics_table(rows, walls_on_truth=evaluation.truth.faces is not None, scored=len(evaluation.truth.T_B_C), total=total))
+    for line in wall_lines:
+        terminal.print(f"walls measured on site, {line}", soft_wrap=True, highlight=False, markup=False)
 
 def main():
     app()

@@ -41,6 +41,7 @@ from bimgraph.config import BackendConfig, Config, DeviationConfig, load_config
 from bimgraph.deviations.outputs import write_deviation_outputs
 from bimgraph.evaluation.jobs import run_all
 from bimgraph.evaluation.metrics import ate, extrinsic_error
+from bimgraph.evaluation.walls import WallTruth, face_scores
 from bimgraph.sequence.format import Camera, load_sequence
 from bimgraph.sequence.groundtruth import as_planned, load_groundtruth
 
@@ -69,32 +70,19 @@ def deviate_synthetic(scene, rng, deviating_fraction: float, missing_fraction: f
 
 
 def score(data, truth, cfg: DeviationConfig) -> dict:
-    """Detection precision/recall on faces with enough evidence, offset accuracy, not-built
-    precision/recall. `truth[face] = (offset at centre, tilt deg, built)`; a face it lacks (of
-    a storey the simulator did not walk) stands as built as planned."""
-    enough = [f for f in data.faces if f.status in ("deviating", "within_tolerance")]
+    """`walls.face_scores` (detection, offsets, not built) and the contest's, widths' and
+    thicknesses' scores. `truth[face] = (offset at centre, tilt deg, built)`; a face it lacks
+    (of a storey the simulator did not walk) stands as built as planned."""
     n_faces = len(truth)
-    truth = {f.face_id: (0.0, 0.0, True) for f in data.faces} | truth
+    truth = {f.face_id: WallTruth(0.0, 0.0, True) for f in data.faces} | {k: WallTruth(*v) for k, v in truth.items()}
 
     def gt_deviating(face_id):
         off, tilt, built = truth[face_id]
         return built and (abs(off) > cfg.tolerance_m or abs(tilt) > cfg.tilt_tolerance_deg)
 
-    flagged = [f for f in enough if f.status == "deviating"]
-    tp = sum(gt_deviating(f.face_id) for f in flagged)
-    positives = sum(gt_deviating(f.face_id) for f in enough)
-    errors = np.array([abs(f.offset_m - truth[f.face_id][0]) for f in enough if truth[f.face_id][2]])
-    not_built = [f for f in data.faces if f.status == "possibly_not_built"]
-    missing = [k for k, v in truth.items() if not v[2]]
     return {
         "faces": n_faces, "observed": sum(f.status != "possibly_not_built" for f in data.faces),
-        "enough": len(enough), "flagged": len(flagged), "true_deviating_enough": positives,
-        "precision": tp / len(flagged) if flagged else 1.0, "recall": tp / positives if positives else 1.0,
-        "offset_within_1cm": float(np.mean(errors <= 0.01)) if len(errors) else float("nan"),
-        "offset_err_p95_mm": float(np.percentile(errors, 95) * 1e3) if len(errors) else float("nan"),
-        "not_built_flagged": len(not_built), "not_built_true": len(missing),
-        "not_built_precision": sum(not truth[f.face_id][2] for f in not_built) / len(not_built) if not_built else 1.0,
-        "not_built_recall": sum(not truth[f.face_id][2] for f in not_built) / len(missing) if missing else 1.0,
+        **face_scores(data.faces, truth, cfg.tolerance_m, cfg.tilt_tolerance_deg),
         "unplanned": len(data.unplanned),
         **contest_score(data, gt_deviating),
         **distance_score(getattr(data, "widths", []), truth, cfg, -1.0, "width", "widths"),

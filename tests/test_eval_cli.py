@@ -10,7 +10,9 @@ from typer.testing import CliRunner
 
 from cli_errors import assert_one_line_error
 from synthetic_sequence import write_sequence
+from test_deviations_backend import moved_plan
 
+from bimgraph.bim.planemap import save_plane_map
 from bimgraph.cli import app
 from bimgraph.geometry import pose_from_tum
 
@@ -317,3 +319,29 @@ def test_eval_of_a_killed_run_stops_where_its_files_do(finished_run, tmp_path):
     result = CliRunner().invoke(app, ["eval", str(killed), "--gt", str(seq), "--no-baselines"])
     assert result.exit_code == 0, result.output
     assert json.loads((killed / "metrics.json").read_text())["keyframes"] == 20
+
+
+@pytest.mark.slow
+def test_a_deviation_report_is_scored_against_walls_measured_on_site(tmp_path):
+    """A site team that measured some walls could not check the report against them."""
+    scene = write_sequence(tmp_path / "seq", 160, rooms=(2, 1), seed=0)
+    save_plane_map(moved_plan(scene.plane_map, {"r00E": 0.08}), tmp_path / "seq" / "planes.json")
+    out = tmp_path / "out"
+    assert CliRunner().invoke(app, ["run", str(tmp_path / "seq"), "-o", str(out), "--mode", "offline"]).exit_code == 0
+    walls = tmp_path / "walls.csv"
+    walls.write_text("face_id,offset_m,tilt_deg,built\nr00E,0.08,,\nr00W,0.0,0,true\nr10W,0,,\nr10E,,,false\n")
+    result = CliRunner().invoke(app, ["eval", str(out), "--gt", str(tmp_path / "seq"), "--no-baselines", "--walls", str(walls)],
+                                terminal_width=200)
+    assert result.exit_code == 0, result.output
+    assert "walls measured on site, out: 4 given, 4 measured in the report: 1 flagged deviating (precision 1.00, recall 1.00" in result.output
+    scores = json.loads((out / "metrics.json").read_text())["walls_measured"]
+    # (r10E said not built, against a report that measured it on plan: no offset error, a miss)
+    assert (scores["enough"], scores["flagged"], scores["offset_within_1cm"]) == (4, 1, 1.0)
+    assert (scores["not_built_true"], scores["not_built_recall"]) == (1, 0.0)
+    for text, message in [("face_id,offset_m\nr00E,6\n", "line 2: offset_m: Input should be less than or equal to 1"),
+                          ("face_id,offset_m\nnope,0.01\n", "line 2: face_id 'nope' is not a face of the plane map"),
+                          ("face_id,offset_m\nr00E,0.06\nr00E,0.05\n", "line 3: face_id 'r00E' is given twice"),
+                          ("face,offset\nr00E,0.06\n", "no header line naming face_id")]:
+        walls.write_text(text)
+        result = CliRunner().invoke(app, ["eval", str(out), "--gt", str(tmp_path / "seq"), "--no-baselines", "--walls", str(walls)])
+        assert_one_line_error(result, 3, f"{walls}: {message}")

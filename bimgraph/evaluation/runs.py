@@ -140,6 +140,23 @@ class Evaluation:
         return Estimate(T_B_C, T_B_S[-1], associations)
 
 
+def wall_scores(out_dir: Path, walls: dict) -> tuple[dict | None, str]:
+    """A finished run's deviation report scored against walls measured on site
+    (`walls.face_scores`), and a line saying it; (None, why) where the run has no report."""
+    from bimgraph.evaluation.walls import face_scores
+
+    report = run_report(out_dir, load_summary(Path(out_dir) / SUMMARY).finished) if (Path(out_dir) / SUMMARY).is_file() else None
+    if report is None:
+        return None, "no deviation report (the run wrote none, or did not finish)"
+    scores = face_scores(report.faces, walls, report.tolerance_m, report.tilt_tolerance_deg)
+    within = f"{scores['offset_within_1cm']:.0%}" if scores["enough"] else "-"
+    return scores, (f"{len(walls)} given, {scores['enough']} measured in the report: {scores['flagged']} flagged deviating "
+                    f"(precision {scores['precision']:.2f}, recall {scores['recall']:.2f} at the report's "
+                    f"{100 * report.tolerance_m:g} cm), offsets within 1 cm {within}, 95th percentile of their errors "
+                    f"{scores['offset_err_p95_mm']:.1f} mm; possibly not built {scores['not_built_flagged']}, "
+                    f"{scores['not_built_true']} given as not built")
+
+
 def _span(stamps) -> str:
     return f"{min(stamps, default=np.nan):.3f}-{max(stamps, default=np.nan):.3f} s" if len(stamps) else "none"
 

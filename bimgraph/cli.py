@@ -322,7 +322,7 @@ def evaluate(
     # (a file or a pipe takes the table at its own width: rich's 80 columns there cut figures)
     terminal = Console()
     Console(width=max(terminal.width, 120) if terminal.is_terminal else 1000).print(
-        metrics_table(rows, walls_on_truth=evaluation.truth.faces is not None, scored=len(evaluation.truth.T_B_C), total=total))
+        metrics_table(rows, walls_on_truth=evaluation.truth.faces is not None))
     for line in wall_lines:
         terminal.print(f"walls measured on site, {line}", soft_wrap=True, highlight=False, markup=False)
 

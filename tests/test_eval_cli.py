@@ -155,7 +155,8 @@ def test_a_reference_trajectory_alone_is_measured_at_the_keyframes_it_has(finish
     copy = reference_only(seq, tmp_path / "own", rows, shift_s=0.004)
     result = CliRunner().invoke(app, ["eval", str(out), "--gt", str(copy)], terminal_width=200)
     assert result.exit_code == 0, result.output
-    assert "ATE: over the 10 of 30 keyframes with a reference pose" in result.output
+    assert "ref. kf: the keyframes with a reference pose" in result.output
+    assert next(line for line in result.output.splitlines() if line.startswith("│ out ")).split("│")[2].strip() == "10"
     assert "wall errors, over the first run's matches" in result.output
     assert "E cm" not in result.output and "prec." not in result.output
     part = json.loads((out / "metrics.json").read_text())
@@ -176,6 +177,9 @@ def test_a_reference_trajectory_alone_is_measured_at_the_keyframes_it_has(finish
     assert CliRunner().invoke(app, ["eval", str(out), "--gt", str(copy), "--no-baselines"]).exit_code == 0
     part = json.loads((out / "metrics.json").read_text())
     assert part["extrinsic_trans_cm"] == whole["extrinsic_trans_cm"] and part["extrinsic_nees"] == whole["extrinsic_nees"]
+    lines = (copy / "groundtruth" / "T_B_C.tum").read_text().splitlines()
+    (copy / "groundtruth" / "T_B_C.tum").write_text("\n".join(lines + lines[-1:]) + "\n")
+    assert_one_line_error(CliRunner().invoke(app, ["eval", str(out), "--gt", str(copy)]), 3, "is given 2 times")
     (copy / "groundtruth" / "T_B_C.tum").unlink()
     assert_one_line_error(CliRunner().invoke(app, ["eval", str(out), "--gt", str(copy)]), 2,
                           "groundtruth: no T_B_C.tum (the reference trajectory in B")

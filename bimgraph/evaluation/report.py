@@ -6,6 +6,7 @@ import math
 
 COLUMNS = [
     ("method", "method", "{}"),
+    ("keyframes_with_reference", "ref. kf", "{}"),
     ("ate_m", "ATE m", "{:.3f}"),
     ("extrinsic_rot_deg", "E deg", "{:.2f}"),
     ("extrinsic_trans_cm", "E cm", "{:.1f}"),
@@ -27,16 +28,18 @@ def _cell(fmt: str, value) -> str:
     return fmt.format(value)
 
 
-def metrics_table(rows: list[dict], walls_on_truth: bool = True, scored: int | None = None, total: int | None = None):
+def metrics_table(rows: list[dict], walls_on_truth: bool = True):
     """The rows (`runs.summary_row`) as a table, its caption a legend of the columns shown.
     `walls_on_truth`: whether the wall errors average over the planes truly of a face (else
-    over the first run's matches); `scored` of `total` keyframes had a reference pose."""
+    over the first run's matches)."""
     from rich.table import Table
 
-    present = [c for c in COLUMNS if any(c[0] in r for r in rows)]
+    # (how many keyframes had a reference pose, where some had none)
+    partial = any(r.get("keyframes_with_reference", 0) != r.get("keyframes", 0) for r in rows if r["method"] != "truth")
+    present = [c for c in COLUMNS if any(c[0] in r for r in rows) and (c[0] != "keyframes_with_reference" or partial)]
     shown = {key for key, _, _ in present}
     # (the legend of the columns shown: without baselines there is no reduction against manual)
-    legend = [f"ATE: over the {scored} of {total} keyframes with a reference pose" if scored != total else None,
+    legend = ["ref. kf: the keyframes with a reference pose, over which ATE is" if partial else None,
               "E: extrinsic T_B_S error (NEES: of its heading and horizontal position against its covariance, "
               "3 on average where that is honest)" if "extrinsic_rot_deg" in shown else None,
               "wall: the paper's wall errors" + ("" if walls_on_truth else ", over the first run's matches"),

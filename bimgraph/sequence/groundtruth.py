@@ -158,6 +158,9 @@ def load_reference(root: Path) -> Reference:
     if not (folder / TRAJECTORY_FILE).is_file():
         raise InputError(f"{folder}: no {TRAJECTORY_FILE} (the reference trajectory in B, TUM: docs/formats.md, Ground truth)")
     stamps, T_B_C = read_tum(folder / TRAJECTORY_FILE)
+    unique, counts = np.unique(stamps, return_counts=True)
+    if (counts > 1).any():  # (which of two poses is the truth? one shifted 0.5 m went into the ATE)
+        raise FormatError(f"{folder / TRAJECTORY_FILE}: stamp {unique[counts > 1][0]:.6f} is given {counts[counts > 1][0]} times")
     return Reference(stamps, T_B_C, _read_extrinsic(folder)[0] if (folder / EXTRINSIC_FILE).is_file() else None,
                      _read_observations(folder) if (folder / OBSERVATIONS_FILE).is_file() else None)
 

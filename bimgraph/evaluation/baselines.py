@@ -38,12 +38,12 @@ class MatchedPlane:
 def matched_planes(keyframes: Sequence[Keyframe], associations: Mapping[tuple[int, int], str],
                    plane_map: PlaneMap) -> list[list[MatchedPlane]]:
     """Per keyframe (in order), its observations that `associations` matched to a face."""
-    T_S_C = {kf.index: kf.pose for kf in keyframes}
+    poses = {kf.index: kf.pose for kf in keyframes}
     out: dict[int, list[MatchedPlane]] = {kf.index: [] for kf in keyframes}
     for m in wall_matches(keyframes, associations, plane_map):
-        R_S_C, t_S_C = T_S_C[m.keyframe][:3, :3], T_S_C[m.keyframe][:3, 3]
-        out[m.keyframe].append(MatchedPlane(m.keyframe, plane_from_frame(m.plane_C, T_S_C[m.keyframe]),
-                                            R_S_C @ m.centre_C + t_S_C, m.face_B))
+        T_S_C = poses[m.keyframe]
+        out[m.keyframe].append(MatchedPlane(m.keyframe, plane_from_frame(m.plane_C, T_S_C), T_S_C[:3, :3] @ m.centre_C + T_S_C[:3, 3],
+                                            m.face_B))
     return list(out.values())
 
 

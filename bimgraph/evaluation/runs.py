@@ -158,7 +158,7 @@ def wall_scores(out_dir: Path, walls: dict) -> tuple[dict | None, str]:
 
 
 def _span(stamps) -> str:
-    return f"{min(stamps, default=np.nan):.3f}-{max(stamps, default=np.nan):.3f} s" if len(stamps) else "none"
+    return f"{min(stamps):.3f}-{max(stamps):.3f} s" if len(stamps) else "none"
 
 
 def run_timings(out_dir: Path) -> dict:
